@@ -1,0 +1,212 @@
+//! Components: what a step adds. A primitive brick, or a submodule built from an assembly.
+
+use std::collections::BTreeSet;
+
+use crate::error::{BrickGeomError, Result};
+use crate::lattice::{rotate_cell, rotate_point, Lattice, Pose};
+use crate::library::part;
+use crate::mesh::Mesh;
+
+/// One brick inside a component: its library id and its pose in the component frame.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Brick {
+    pub part: &'static str,
+    pub pose: Pose,
+}
+
+/// A placeable unit: a primitive part or a submodule (a union of placed bricks).
+///
+/// All geometry is in the component frame (lattice units, y up). For a primitive this is the
+/// part frame; for a submodule it is the frame of the assembly it was built in.
+#[derive(Debug, Clone)]
+pub struct Component {
+    /// Part id for a primitive, the submodule's name otherwise.
+    pub name: String,
+    /// True for a submodule.
+    pub is_submodule: bool,
+    pub bricks: Vec<Brick>,
+    /// Occupied voxels, sorted, no duplicates.
+    pub voxels: Vec<Lattice>,
+    /// Stud points of the union that are not covered by its own bricks, sorted.
+    pub studs: Vec<Lattice>,
+    /// Anti-stud points of the union that are not blocked by its own bricks, sorted.
+    pub anti_studs: Vec<Lattice>,
+    /// Yaw symmetry order (1, 2 or 4): how many quarter turns map the geometry onto itself up to
+    /// a translation.
+    pub symmetry: u8,
+    /// Indices into `bricks` of the topmost bricks (highest top face); their keypoints are the
+    /// component's keypoint candidates.
+    pub topmost: Vec<usize>,
+}
+
+/// The four cells around a connection point, on the layer `y` (the layer above a stud is the
+/// point's y; the layer below an anti-stud is y - 1).
+pub(crate) fn cells_around(p: Lattice, layer: i32) -> [Lattice; 4] {
+    [
+        [p[0] - 1, layer, p[2] - 1],
+        [p[0], layer, p[2] - 1],
+        [p[0] - 1, layer, p[2]],
+        [p[0], layer, p[2]],
+    ]
+}
+
+impl Component {
+    /// The component of a single library part (id or alias).
+    pub fn primitive(id: &str) -> Result<Component> {
+        let def = part(id)?;
+        let mut c = Component::from_bricks(
+            def.id.to_string(),
+            vec![Brick {
+                part: def.id,
+                pose: Pose::identity(),
+            }],
+        )?;
+        c.is_submodule = false;
+        c.symmetry = def.symmetry;
+        Ok(c)
+    }
+
+    /// A submodule from placed bricks (e.g. an assembly's instances). Connection points that its
+    /// own bricks engage are internal and dropped.
+    pub fn from_bricks(name: String, bricks: Vec<Brick>) -> Result<Component> {
+        if bricks.is_empty() {
+            return Err(BrickGeomError::EmptyComponent {
+                what: format!("submodule '{name}' has no bricks"),
+            });
+        }
+        let mut voxels = BTreeSet::new();
+        let mut studs = BTreeSet::new();
+        let mut anti = BTreeSet::new();
+        for b in &bricks {
+            let def = part(b.part)?;
+            voxels.extend(def.voxels.iter().map(|&v| b.pose.apply_cell(v)));
+            studs.extend(def.studs.iter().map(|&s| b.pose.apply_point(s)));
+            anti.extend(def.anti_studs.iter().map(|&a| b.pose.apply_point(a)));
+        }
+        let studs: Vec<Lattice> = studs
+            .into_iter()
+            .filter(|&s| !cells_around(s, s[1]).iter().all(|c| voxels.contains(c)))
+            .filter(|s| !anti.contains(s))
+            .collect();
+        let anti_studs: Vec<Lattice> = anti
+            .iter()
+            .copied()
+            .filter(|&a| !cells_around(a, a[1] - 1).iter().all(|c| voxels.contains(c)))
+            .collect();
+        // Studs engaged by an anti-stud of the same component are internal; drop the matching
+        // anti-studs too.
+        let all_studs: BTreeSet<Lattice> = bricks
+            .iter()
+            .flat_map(|b| {
+                let def = part(b.part).expect("checked above");
+                def.studs.iter().map(move |&s| b.pose.apply_point(s))
+            })
+            .collect();
+        let anti_studs: Vec<Lattice> = anti_studs
+            .into_iter()
+            .filter(|a| !all_studs.contains(a))
+            .collect();
+        let tops: Vec<f32> = bricks
+            .iter()
+            .map(|b| {
+                let def = part(b.part).expect("checked above");
+                b.pose.apply_ldu(def.keypoint)[1]
+            })
+            .collect();
+        let top = tops.iter().cloned().fold(f32::MIN, f32::max);
+        let topmost = (0..bricks.len()).filter(|&i| tops[i] == top).collect();
+        let voxels: Vec<Lattice> = voxels.into_iter().collect();
+        let mut c = Component {
+            name,
+            is_submodule: true,
+            bricks,
+            voxels,
+            studs,
+            anti_studs,
+            symmetry: 1,
+            topmost,
+        };
+        c.symmetry = c.detect_symmetry();
+        Ok(c)
+    }
+
+    /// Geometry (voxels, studs, anti-studs) after a pose, each list sorted.
+    pub fn placed(&self, pose: &Pose) -> (Vec<Lattice>, Vec<Lattice>, Vec<Lattice>) {
+        let mut v: Vec<Lattice> = self.voxels.iter().map(|&c| pose.apply_cell(c)).collect();
+        let mut s: Vec<Lattice> = self.studs.iter().map(|&p| pose.apply_point(p)).collect();
+        let mut a: Vec<Lattice> = self
+            .anti_studs
+            .iter()
+            .map(|&p| pose.apply_point(p))
+            .collect();
+        v.sort_unstable();
+        s.sort_unstable();
+        a.sort_unstable();
+        (v, s, a)
+    }
+
+    /// Number of quarter turns (out of 4) under which the geometry equals itself up to a
+    /// translation.
+    fn detect_symmetry(&self) -> u8 {
+        let base = self.placed(&Pose::identity());
+        let norm = |(v, s, a): (Vec<Lattice>, Vec<Lattice>, Vec<Lattice>)| {
+            let m = v.iter().fold([i32::MAX; 3], |m, c| {
+                [m[0].min(c[0]), m[1].min(c[1]), m[2].min(c[2])]
+            });
+            let sh = |p: &Lattice| [p[0] - m[0], p[1] - m[1], p[2] - m[2]];
+            (
+                v.iter().map(sh).collect::<Vec<_>>(),
+                s.iter().map(sh).collect::<Vec<_>>(),
+                a.iter().map(sh).collect::<Vec<_>>(),
+            )
+        };
+        let base = norm(base);
+        let n = (0..4u8)
+            .filter(|&yaw| norm(self.placed(&Pose::new(yaw, [0, 0, 0]))) == base)
+            .count();
+        n as u8
+    }
+
+    /// Two poses are the same placement when they produce identical geometry (this is pose
+    /// equality modulo the component's symmetry).
+    pub fn same_placement(&self, a: &Pose, b: &Pose) -> bool {
+        a == b || self.placed(a) == self.placed(b)
+    }
+
+    /// The keypoints (LDU, y up, component frame) of the topmost bricks.
+    pub fn keypoints(&self) -> Vec<[f32; 3]> {
+        self.topmost
+            .iter()
+            .map(|&i| {
+                let b = &self.bricks[i];
+                b.pose
+                    .apply_ldu(part(b.part).expect("bricks are library parts").keypoint)
+            })
+            .collect()
+    }
+
+    /// The union mesh of the bricks (LDU, y up, component frame).
+    pub fn mesh(&self) -> Mesh {
+        let mut m = Mesh::new();
+        for b in &self.bricks {
+            let def = part(b.part).expect("bricks are library parts");
+            m.append(&def.mesh.transformed(&b.pose));
+        }
+        m
+    }
+
+    /// Lowest voxel y.
+    pub fn min_y(&self) -> i32 {
+        self.voxels.iter().map(|v| v[1]).min().unwrap_or(0)
+    }
+}
+
+/// Rotate a whole list of cells (helper for tests and callers).
+pub fn rotate_cells(cells: &[Lattice], yaw: u8) -> Vec<Lattice> {
+    cells.iter().map(|&c| rotate_cell(c, yaw)).collect()
+}
+
+/// Rotate a whole list of points.
+pub fn rotate_points(points: &[Lattice], yaw: u8) -> Vec<Lattice> {
+    points.iter().map(|&p| rotate_point(p, yaw)).collect()
+}

@@ -1,0 +1,21 @@
+//! brickgeom: the geometry core of mepnet.
+//!
+//! Units and frames (DESIGN §2): world geometry in LDraw units (LDU); the lattice has x and z in
+//! half-studs (10 LDU) and y in plates (8 LDU), y up. LDraw's y-down frame appears only at the
+//! LDraw I/O boundary (`ldraw`).
+
+pub mod assembly;
+pub mod component;
+pub mod error;
+pub mod lattice;
+pub mod ldraw;
+pub mod library;
+pub mod mesh;
+mod parts;
+
+pub use assembly::{AttachKind, Assembly, Placement};
+pub use component::Component;
+pub use error::{BrickGeomError, Result};
+pub use lattice::{Lattice, Pose};
+pub use library::{library, part, Category, Library, PartDef};
+pub use mesh::Mesh;
