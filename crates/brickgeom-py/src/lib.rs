@@ -1,1 +1,19 @@
-//! placeholder
+//! `mepnet._brickgeom`: thin PyO3 wrappers over the brickgeom core.
+//!
+//! Each function extracts its arguments, releases the GIL around work that can take longer than
+//! about a millisecond, calls the core and converts the result. No geometry lives here.
+
+mod errors;
+mod geom;
+mod ldraw;
+
+use pyo3::prelude::*;
+
+#[pymodule]
+fn _brickgeom(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    errors::register(m)?;
+    geom::register(m)?;
+    ldraw::register(m)?;
+    m.add("__version__", env!("CARGO_PKG_VERSION"))?;
+    Ok(())
+}

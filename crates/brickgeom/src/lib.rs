@@ -13,7 +13,7 @@ pub mod library;
 pub mod mesh;
 mod parts;
 
-pub use assembly::{AttachKind, Assembly, Placement};
+pub use assembly::{Assembly, AttachKind, GroundSearch, Instance, Placement, Snapshot};
 pub use component::Component;
 pub use error::{BrickGeomError, Result};
 pub use lattice::{Lattice, Pose};

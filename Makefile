@@ -1,0 +1,51 @@
+# mepnet: `make demo` and `make test` work on a machine that has never seen the project.
+# They create .venv, install the package (release build of the Rust extension) and its
+# dependencies, then run.
+
+PYTHON ?= python3
+VENV := .venv
+PY := $(VENV)/bin/python
+export VIRTUAL_ENV := $(abspath $(VENV))
+export PATH := $(abspath $(VENV))/bin:$(PATH)
+
+.PHONY: all demo test bench lint install venv fmt clean
+
+all: install
+
+$(PY):
+	$(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --quiet --upgrade pip
+
+# Python dependencies are re-installed only when pyproject.toml changes.
+$(VENV)/.deps: pyproject.toml | $(PY)
+	$(PY) -m pip install --quiet "maturin>=1.7,<2" "numpy>=1.24" "tqdm>=4.60" \
+		"pytest>=8" "hypothesis>=6" "ruff>=0.6" "mypy>=1.10"
+	touch $@
+
+# The extension is rebuilt (incrementally) every time: cargo decides what changed.
+install: $(VENV)/.deps
+	$(VENV)/bin/maturin develop --release --quiet --extras dev
+
+demo: install
+	$(PY) -m mepnet.infer
+
+test: install
+	cargo test --workspace --exclude brickgeom-py
+	$(PY) -m pytest -q
+
+bench: install
+	cargo build --release --workspace
+	$(PY) tests/benchmarks/bench_geom.py --out docs/benchmarks.md
+
+lint: install
+	cargo fmt --all -- --check
+	cargo clippy --workspace --all-targets -- -D warnings
+	$(VENV)/bin/ruff check python tests
+	$(PY) -m mypy.stubtest mepnet._brickgeom --allowlist tests/stubtest-allowlist.txt
+
+fmt:
+	cargo fmt --all
+	$(VENV)/bin/ruff format python tests
+
+clean:
+	rm -rf $(VENV) target

@@ -1,0 +1,50 @@
+"""Brick geometry: the part library, components and assemblies (re-exported from the Rust core).
+
+Units (DESIGN §2): lattice x and z in half-studs (10 LDU), y in plates (8 LDU), y up. A pose is
+``(yaw, (x, y, z))``: ``yaw`` quarter turns about +y, then an integer lattice translation.
+Meshes are in LDU, y up.
+"""
+
+from mepnet._brickgeom import (
+    Assembly,
+    BelowGroundError,
+    BrickGeomError,
+    CollisionError,
+    Component,
+    FileError,
+    InvalidArgumentError,
+    LDrawError,
+    NoSuchInstanceError,
+    NotConnectedError,
+    OutOfRangeError,
+    PlacementError,
+    UnknownPartError,
+    part_ids,
+    part_info,
+    part_mesh,
+    resolve_part,
+)
+
+#: Attach-kind codes returned by :meth:`Assembly.candidates`.
+ATTACH_KINDS = ("on_studs", "from_below", "ground")
+
+__all__ = [
+    "ATTACH_KINDS",
+    "Assembly",
+    "BelowGroundError",
+    "BrickGeomError",
+    "CollisionError",
+    "Component",
+    "FileError",
+    "InvalidArgumentError",
+    "LDrawError",
+    "NoSuchInstanceError",
+    "NotConnectedError",
+    "OutOfRangeError",
+    "PlacementError",
+    "UnknownPartError",
+    "part_ids",
+    "part_info",
+    "part_mesh",
+    "resolve_part",
+]
