@@ -298,6 +298,43 @@ impl PyAssembly {
         Ok(self.inner.check(&component.inner, &pose(yaw, t)?).py()?.name())
     }
 
+    /// Validity of many poses of one component: `poses` is (N, 4) int `[yaw, x, y, z]`; returns
+    /// (N,) int8 codes: 0 on_studs, 1 from_below, 2 ground, -1 collision, -2 not connected,
+    /// -3 below ground or out of range.
+    fn check_many<'py>(
+        &self,
+        py: Python<'py>,
+        component: &PyComponent,
+        poses: PyReadonlyArray2<'py, i64>,
+    ) -> PyResult<Bound<'py, PyArray1<i8>>> {
+        let a = poses.as_array();
+        if a.ncols() != 4 {
+            return Err(PyValueError::new_err(format!(
+                "poses must have shape (N, 4) = [yaw, x, y, z] per row, got {:?}",
+                a.shape()
+            )));
+        }
+        let mut list = Vec::with_capacity(a.nrows());
+        for row in a.rows() {
+            let c: Vec<i32> = (1..4)
+                .map(|j| row[j].clamp(i32::MIN as i64, i32::MAX as i64) as i32)
+                .collect();
+            list.push(pose(row[0], (c[0], c[1], c[2]))?);
+        }
+        let comp = component.inner.clone();
+        let res = py.detach(|| self.inner.check_many(&comp, &list));
+        let codes: Array1<i8> = res
+            .into_iter()
+            .map(|r| match r {
+                Ok(k) => k as i8,
+                Err(brickgeom::BrickGeomError::Collision { .. }) => -1,
+                Err(brickgeom::BrickGeomError::NotConnected) => -2,
+                Err(_) => -3,
+            })
+            .collect();
+        Ok(codes.into_pyarray(py))
+    }
+
     /// Every way a placement connects (collision not checked).
     fn attach_kinds(&self, component: &PyComponent, yaw: i64, t: Int3) -> PyResult<Vec<&'static str>> {
         let p = pose(yaw, t)?;

@@ -5,15 +5,14 @@
 //! from the grid (the four cells next to the point on the side it faces are empty), so the answer
 //! is always consistent with the voxels, whatever order things were added and removed in.
 
-use std::collections::HashMap;
-use std::sync::Arc;
+use std::sync::{Arc, OnceLock};
 
 use ndarray::Array3;
 use rayon::prelude::*;
 
 use crate::component::{cells_around, Component};
 use crate::error::{BrickGeomError, Result};
-use crate::lattice::{check_range, Lattice, Pose};
+use crate::lattice::{check_range, pack, Lattice, PointMap, PointSet, Pose};
 
 /// How a placement is held by the assembly (DESIGN §3), in order of preference.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
@@ -157,10 +156,54 @@ impl Grid {
 pub struct Assembly {
     grid: Grid,
     instances: Vec<Option<Instance>>,
-    /// Stud point -> instances with a stud there.
-    stud_index: HashMap<Lattice, Vec<u32>>,
-    /// Anti-stud point -> instances with an anti-stud there.
-    anti_stud_index: HashMap<Lattice, Vec<u32>>,
+    /// Stud point (packed) -> instances with a stud there.
+    stud_index: PointMap<(Lattice, Vec<u32>)>,
+    /// Anti-stud point (packed) -> instances with an anti-stud there.
+    anti_stud_index: PointMap<(Lattice, Vec<u32>)>,
+    /// Free studs and anti-studs (sorted lists and packed sets), computed on first use after
+    /// every change: stage 2 and candidate enumeration ask many questions of one state.
+    free_cache: OnceLock<Arc<FreePoints>>,
+}
+
+#[derive(Debug, Default)]
+struct FreePoints {
+    studs: Vec<Lattice>,
+    anti_studs: Vec<Lattice>,
+    stud_set: PointSet,
+    anti_stud_set: PointSet,
+}
+
+/// A component's geometry rotated by one yaw, ready to be translated many times.
+struct Prepared<'a> {
+    component: &'a Component,
+    yaw: u8,
+    voxels: Vec<Lattice>,
+    studs: Vec<Lattice>,
+    anti_studs: Vec<Lattice>,
+    lo: Lattice,
+    hi: Lattice,
+}
+
+impl<'a> Prepared<'a> {
+    fn new(component: &'a Component, yaw: u8) -> Self {
+        let rot = Pose::new(yaw, [0, 0, 0]);
+        let voxels: Vec<Lattice> = component.voxels.iter().map(|&v| rot.apply_cell(v)).collect();
+        let (lo, hi) = bounds(&voxels).unwrap_or(([0; 3], [0; 3]));
+        Prepared {
+            component,
+            yaw,
+            studs: component.studs.iter().map(|&p| rot.apply_point(p)).collect(),
+            anti_studs: component.anti_studs.iter().map(|&p| rot.apply_point(p)).collect(),
+            voxels,
+            lo,
+            hi,
+        }
+    }
+}
+
+#[inline]
+fn add(p: Lattice, t: Lattice) -> Lattice {
+    [p[0] + t[0], p[1] + t[1], p[2] + t[2]]
 }
 
 /// A comparable description of an assembly's state (for tests and equality).
@@ -261,25 +304,65 @@ impl Assembly {
 
     /// Every way the placement connects (empty: not connected). Does not check collision.
     pub fn attach_kinds(&self, component: &Component, pose: &Pose) -> Vec<AttachKind> {
+        let prep = Prepared::new(component, pose.yaw);
+        self.kinds_of(&prep, pose.t, |p| self.is_free_stud(p), |p| self.is_free_anti_stud(p))
+    }
+
+    fn is_free_stud(&self, p: Lattice) -> bool {
+        self.free_points().stud_set.contains(&pack(p))
+    }
+
+    fn is_free_anti_stud(&self, p: Lattice) -> bool {
+        self.free_points().anti_stud_set.contains(&pack(p))
+    }
+
+    fn kinds_of(
+        &self,
+        prep: &Prepared,
+        t: Lattice,
+        free_stud: impl Fn(Lattice) -> bool,
+        free_anti: impl Fn(Lattice) -> bool,
+    ) -> Vec<AttachKind> {
         let mut kinds = Vec::new();
-        let on_studs = component.anti_studs.iter().any(|&a| {
-            let p = pose.apply_point(a);
-            self.stud_index.contains_key(&p) && self.stud_is_free(p)
-        });
-        if on_studs {
+        if prep.anti_studs.iter().any(|&a| free_stud(add(a, t))) {
             kinds.push(AttachKind::OnStuds);
         }
-        let from_below = component.studs.iter().any(|&s| {
-            let p = pose.apply_point(s);
-            self.anti_stud_index.contains_key(&p) && self.anti_stud_is_free(p)
-        });
-        if from_below {
+        if prep.studs.iter().any(|&s| free_anti(add(s, t))) {
             kinds.push(AttachKind::FromBelow);
         }
-        if component.voxels.iter().map(|&v| pose.apply_cell(v)[1]).min() == Some(0) {
+        if prep.lo[1] + t[1] == 0 {
             kinds.push(AttachKind::Ground);
         }
         kinds
+    }
+
+    /// The shared check: range, ground, collision (early exit), then connection.
+    fn check_prepared(
+        &self,
+        prep: &Prepared,
+        t: Lattice,
+        free_stud: impl Fn(Lattice) -> bool,
+        free_anti: impl Fn(Lattice) -> bool,
+    ) -> Result<AttachKind> {
+        check_range(t)?;
+        check_range(add(prep.lo, t))?;
+        check_range(add(prep.hi, t))?;
+        if prep.lo[1] + t[1] < 0 {
+            return Err(BrickGeomError::BelowGround { y: prep.lo[1] + t[1] });
+        }
+        if let Some(instance) = prep.voxels.iter().find_map(|&v| self.occupant(add(v, t))) {
+            return Err(BrickGeomError::Collision { instance });
+        }
+        // Preference order: on studs, from below, ground.
+        if prep.anti_studs.iter().any(|&a| free_stud(add(a, t))) {
+            Ok(AttachKind::OnStuds)
+        } else if prep.studs.iter().any(|&s| free_anti(add(s, t))) {
+            Ok(AttachKind::FromBelow)
+        } else if prep.lo[1] + t[1] == 0 {
+            Ok(AttachKind::Ground)
+        } else {
+            Err(BrickGeomError::NotConnected)
+        }
     }
 
     /// Full validity of a placement: in range, above ground, collision-free and connected.
@@ -290,20 +373,31 @@ impl Assembly {
                 yaw: pose.yaw as i64,
             });
         }
-        check_range(pose.t)?;
-        let voxels: Vec<Lattice> = component
-            .voxels
-            .iter()
-            .map(|&v| pose.apply_cell(v))
-            .collect();
-        self.geometry_checks(&voxels)?;
-        if let Some(instance) = voxels.iter().find_map(|&v| self.occupant(v)) {
-            return Err(BrickGeomError::Collision { instance });
-        }
-        self.attach_kinds(component, pose)
-            .first()
-            .copied()
-            .ok_or(BrickGeomError::NotConnected)
+        let prep = Prepared::new(component, pose.yaw);
+        self.check_prepared(&prep, pose.t, |p| self.is_free_stud(p), |p| self.is_free_anti_stud(p))
+    }
+
+    /// `check` for many poses of one component, in parallel; results in input order.
+    pub fn check_many(&self, component: &Component, poses: &[Pose]) -> Vec<Result<AttachKind>> {
+        let preps: Vec<Prepared> = (0..4).map(|yaw| Prepared::new(component, yaw)).collect();
+        let free = self.free_points();
+        let (fs, fa) = (&free.stud_set, &free.anti_stud_set);
+        // See `candidates` for the chunk size.
+        poses
+            .par_iter()
+            .with_min_len(64)
+            .map(|p| {
+                if p.yaw > 3 {
+                    return Err(BrickGeomError::InvalidYaw { yaw: p.yaw as i64 });
+                }
+                self.check_prepared(
+                    &preps[p.yaw as usize],
+                    p.t,
+                    |q| fs.contains(&pack(q)),
+                    |q| fa.contains(&pack(q)),
+                )
+            })
+            .collect()
     }
 
     /// Place a component. Checks range, ground and collision; connection is *not* required
@@ -321,6 +415,7 @@ impl Assembly {
             return Err(BrickGeomError::Collision { instance });
         }
         let id = self.instances.len() as u32;
+        self.free_cache = OnceLock::new();
         if let Some((lo, hi)) = bounds(&voxels) {
             self.grid.ensure(lo, hi);
         }
@@ -329,10 +424,10 @@ impl Assembly {
             self.grid.cells[i] = id + 1;
         }
         for &s in &studs {
-            self.stud_index.entry(s).or_default().push(id);
+            self.stud_index.entry(pack(s)).or_insert((s, Vec::new())).1.push(id);
         }
         for &a in &anti_studs {
-            self.anti_stud_index.entry(a).or_default().push(id);
+            self.anti_stud_index.entry(pack(a)).or_insert((a, Vec::new())).1.push(id);
         }
         self.instances.push(Some(Instance {
             component,
@@ -358,6 +453,7 @@ impl Assembly {
             .get_mut(id as usize)
             .and_then(|slot| slot.take())
             .ok_or(BrickGeomError::NoSuchInstance { id })?;
+        self.free_cache = OnceLock::new();
         for &v in &inst.voxels {
             if let Some(i) = self.grid.index(v) {
                 self.grid.cells[i] = 0;
@@ -367,11 +463,12 @@ impl Assembly {
             (&mut self.stud_index, &inst.studs),
             (&mut self.anti_stud_index, &inst.anti_studs),
         ] {
-            for p in points {
-                if let Some(ids) = index.get_mut(p) {
+            for &p in points {
+                let k = pack(p);
+                if let Some((_, ids)) = index.get_mut(&k) {
                     ids.retain(|&x| x != id);
                     if ids.is_empty() {
-                        index.remove(p);
+                        index.remove(&k);
                     }
                 }
             }
@@ -383,28 +480,37 @@ impl Assembly {
         Ok(inst)
     }
 
+    fn free_points(&self) -> Arc<FreePoints> {
+        self.free_cache
+            .get_or_init(|| {
+                let collect = |index: &PointMap<(Lattice, Vec<u32>)>, free: &dyn Fn(Lattice) -> bool| {
+                    let mut v: Vec<Lattice> =
+                        index.values().map(|(p, _)| *p).filter(|&p| free(p)).collect();
+                    v.sort_unstable();
+                    let set: PointSet = v.iter().map(|&p| pack(p)).collect();
+                    (v, set)
+                };
+                let (studs, stud_set) = collect(&self.stud_index, &|p| self.stud_is_free(p));
+                let (anti_studs, anti_stud_set) =
+                    collect(&self.anti_stud_index, &|p| self.anti_stud_is_free(p));
+                Arc::new(FreePoints {
+                    studs,
+                    anti_studs,
+                    stud_set,
+                    anti_stud_set,
+                })
+            })
+            .clone()
+    }
+
     /// Free studs of the assembly, sorted.
     pub fn free_studs(&self) -> Vec<Lattice> {
-        let mut v: Vec<Lattice> = self
-            .stud_index
-            .keys()
-            .copied()
-            .filter(|&p| self.stud_is_free(p))
-            .collect();
-        v.sort_unstable();
-        v
+        self.free_points().studs.clone()
     }
 
     /// Free anti-studs of the assembly, sorted.
     pub fn free_anti_studs(&self) -> Vec<Lattice> {
-        let mut v: Vec<Lattice> = self
-            .anti_stud_index
-            .keys()
-            .copied()
-            .filter(|&p| self.anti_stud_is_free(p))
-            .collect();
-        v.sort_unstable();
-        v
+        self.free_points().anti_studs.clone()
     }
 
     /// Occupied cell bounds `(lo, hi)` inclusive; `None` when empty.
@@ -470,41 +576,41 @@ impl Assembly {
         }
     }
 
-    /// Translations worth testing for `component` at `yaw`: every match of one of its anti-studs
-    /// with a free stud, of one of its studs with a free anti-stud, and ground positions.
-    fn candidate_translations(&self, component: &Component, yaw: u8, ground: GroundSearch) -> Vec<Lattice> {
-        let rot = Pose::new(yaw, [0, 0, 0]);
-        let anti: Vec<Lattice> = component.anti_studs.iter().map(|&a| rot.apply_point(a)).collect();
-        let studs: Vec<Lattice> = component.studs.iter().map(|&s| rot.apply_point(s)).collect();
-        let mut ts = Vec::new();
-        for s in self.free_studs() {
-            ts.extend(anti.iter().map(|a| [s[0] - a[0], s[1] - a[1], s[2] - a[2]]));
+    /// Translations worth testing: every match of one of the component's anti-studs with a free
+    /// stud, of one of its studs with a free anti-stud, and ground positions.
+    fn candidate_translations(
+        &self,
+        prep: &Prepared,
+        free_studs: &[Lattice],
+        free_anti: &[Lattice],
+        ground: GroundSearch,
+    ) -> Vec<Lattice> {
+        let mut ts = Vec::with_capacity(
+            free_studs.len() * prep.anti_studs.len() + free_anti.len() * prep.studs.len(),
+        );
+        for s in free_studs {
+            ts.extend(prep.anti_studs.iter().map(|a| [s[0] - a[0], s[1] - a[1], s[2] - a[2]]));
         }
-        for f in self.free_anti_studs() {
-            ts.extend(studs.iter().map(|b| [f[0] - b[0], f[1] - b[1], f[2] - b[2]]));
+        for f in free_anti {
+            ts.extend(prep.studs.iter().map(|b| [f[0] - b[0], f[1] - b[1], f[2] - b[2]]));
         }
         let region = match ground {
             GroundSearch::Off => None,
             GroundSearch::Region { x0, x1, z0, z1 } => Some((x0, x1, z0, z1)),
             GroundSearch::Auto => Some(match self.bounds() {
                 None => (-16, 16, -16, 16),
-                Some((lo, hi)) => {
-                    let rv: Vec<Lattice> = component.voxels.iter().map(|&v| rot.apply_cell(v)).collect();
-                    let (clo, chi) = bounds(&rv).unwrap_or(([0; 3], [0; 3]));
-                    (lo[0] - chi[0] - 1, hi[0] - clo[0] + 1, lo[2] - chi[2] - 1, hi[2] - clo[2] + 1)
-                }
+                Some((lo, hi)) => (
+                    lo[0] - prep.hi[0] - 1,
+                    hi[0] - prep.lo[0] + 1,
+                    lo[2] - prep.hi[2] - 1,
+                    hi[2] - prep.lo[2] + 1,
+                ),
             }),
         };
         if let Some((x0, x1, z0, z1)) = region {
-            let min_y = component
-                .voxels
-                .iter()
-                .map(|&v| rot.apply_cell(v)[1])
-                .min()
-                .unwrap_or(0);
             for x in x0..=x1 {
                 for z in z0..=z1 {
-                    ts.push([x, -min_y, z]);
+                    ts.push([x, -prep.lo[1], z]);
                 }
             }
         }
@@ -515,23 +621,34 @@ impl Assembly {
 
     /// Every valid (connected, collision-free, above ground) placement of `component` at `yaw`,
     /// sorted by translation. Candidates are checked in parallel; the result is deterministic.
-    pub fn candidates(&self, component: &Component, yaw: u8, ground: GroundSearch) -> Result<Vec<Placement>> {
+    pub fn candidates(
+        &self,
+        component: &Component,
+        yaw: u8,
+        ground: GroundSearch,
+    ) -> Result<Vec<Placement>> {
         if yaw > 3 {
             return Err(BrickGeomError::InvalidYaw { yaw: yaw as i64 });
         }
-        let ts = self.candidate_translations(component, yaw, ground);
-        // One candidate check is ~100 grid lookups (a few µs); chunks of 64 keep rayon's
-        // per-task overhead small against that.
+        let prep = Prepared::new(component, yaw);
+        let free = self.free_points();
+        let ts = self.candidate_translations(&prep, &free.studs, &free.anti_studs, ground);
+        let (fs, fa) = (&free.stud_set, &free.anti_stud_set);
+        // One candidate check is ~100 grid lookups (well under a microsecond); chunks of 256
+        // keep rayon's per-task overhead small against that.
         let found: Vec<Option<Placement>> = ts
             .par_iter()
-            .with_min_len(64)
+            .with_min_len(256)
             .map(|&t| {
-                let pose = Pose::new(yaw, t);
-                self.check(component, &pose)
+                self.check_prepared(&prep, t, |q| fs.contains(&pack(q)), |q| fa.contains(&pack(q)))
                     .ok()
-                    .map(|kind| Placement { pose, kind })
+                    .map(|kind| Placement {
+                        pose: Pose::new(prep.yaw, t),
+                        kind,
+                    })
             })
             .collect();
+        let _ = prep.component;
         Ok(found.into_iter().flatten().collect())
     }
 

@@ -142,6 +142,43 @@ pub fn check_range(p: Lattice) -> crate::Result<()> {
     }
 }
 
+
+/// Pack a lattice point (|coordinates| < 2^20) into one u64 key for hashing.
+#[inline]
+pub fn pack(p: Lattice) -> u64 {
+    const B: i64 = 1 << 20;
+    let f = |v: i32| ((v as i64 + B) as u64) & 0x1f_ffff;
+    (f(p[0]) << 42) | (f(p[1]) << 21) | f(p[2])
+}
+
+/// A fast multiplicative hasher for packed lattice keys (the std SipHash is a large share of a
+/// connection check otherwise). Not DoS-resistant, which does not matter for geometry.
+#[derive(Default, Clone, Copy)]
+pub struct PointHasher(u64);
+
+impl std::hash::Hasher for PointHasher {
+    #[inline]
+    fn finish(&self) -> u64 {
+        self.0
+    }
+    #[inline]
+    fn write(&mut self, bytes: &[u8]) {
+        for &b in bytes {
+            self.write_u64(b as u64);
+        }
+    }
+    #[inline]
+    fn write_u64(&mut self, v: u64) {
+        self.0 = (self.0.rotate_left(5) ^ v).wrapping_mul(0x517c_c1b7_2722_0a95);
+    }
+}
+
+/// Hash map keyed by packed lattice points.
+pub type PointMap<V> =
+    std::collections::HashMap<u64, V, std::hash::BuildHasherDefault<PointHasher>>;
+/// Hash set of packed lattice points.
+pub type PointSet = std::collections::HashSet<u64, std::hash::BuildHasherDefault<PointHasher>>;
+
 #[cfg(test)]
 mod tests {
     use super::*;
