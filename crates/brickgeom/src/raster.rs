@@ -1,0 +1,529 @@
+//! brickgeom's CPU triangle rasterizer (DESIGN §4): in one pass, a manual-style RGB image (flat
+//! part colours, soft shading, dark outlines at depth, crease and part boundaries, white
+//! background), depth, per-pixel instance ids, and per-instance visible / unoccluded pixel counts.
+//!
+//! Pixel conventions are the camera's (`camera.rs`): samples at pixel centres. With
+//! supersampling factor `ss` (odd: 1 or 3) the image is rasterized at `ss` times the size; colour
+//! is box-filtered down, and ids and depth are taken from the centre sample of each pixel.
+
+use rayon::prelude::*;
+
+use crate::camera::Camera;
+use crate::error::{BrickGeomError, Result};
+use crate::mesh::Mesh;
+
+/// One thing to draw: a mesh already in world LDU (y up), its colour and its instance id.
+#[derive(Debug, Clone, Copy)]
+pub struct RenderItem<'a> {
+    pub mesh: &'a Mesh,
+    pub colour: [u8; 3],
+}
+
+/// Rendering options.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RenderOptions {
+    pub width: u32,
+    pub height: u32,
+    /// Supersampling factor for anti-aliasing: 1 (off) or 3.
+    pub supersample: u32,
+    /// Outline width in output pixels (0 = no outlines).
+    pub line_px: f32,
+    pub background: [u8; 3],
+    /// Depth jump (LDU) between neighbouring samples that counts as an outline.
+    pub depth_edge: f32,
+    /// Cosine of the largest angle between neighbouring face normals that is not a crease.
+    pub crease_cos: f32,
+}
+
+impl RenderOptions {
+    /// Defaults for a `width` x `height` image: no anti-aliasing, 1 px lines per 256 px.
+    pub fn new(width: u32, height: u32) -> Self {
+        RenderOptions {
+            width,
+            height,
+            supersample: 1,
+            line_px: (width.max(height) as f32 / 256.0).max(1.0),
+            background: [255, 255, 255],
+            depth_edge: 6.0,
+            crease_cos: 0.8,
+        }
+    }
+
+    fn validate(&self) -> Result<()> {
+        if self.width == 0 || self.height == 0 || self.width > 8192 || self.height > 8192 {
+            return Err(BrickGeomError::InvalidArgument(format!(
+                "image size must be 1..=8192 pixels per side, got {}x{}",
+                self.width, self.height
+            )));
+        }
+        if !matches!(self.supersample, 1 | 3) {
+            return Err(BrickGeomError::InvalidArgument(format!(
+                "supersample must be 1 or 3, got {}",
+                self.supersample
+            )));
+        }
+        if !(self.line_px >= 0.0 && self.line_px <= 16.0) {
+            return Err(BrickGeomError::InvalidArgument(format!(
+                "line width must be within [0, 16] pixels, got {}",
+                self.line_px
+            )));
+        }
+        Ok(())
+    }
+}
+
+/// The result of a render. Images are row major, `height` rows of `width` pixels.
+#[derive(Debug, Clone)]
+pub struct Rendered {
+    pub width: u32,
+    pub height: u32,
+    /// RGB, `height * width * 3`.
+    pub rgb: Vec<u8>,
+    /// Depth along the view axis (LDU, larger = farther); `f32::INFINITY` on the background.
+    pub depth: Vec<f32>,
+    /// Index of the item seen at each pixel; -1 on the background.
+    pub ids: Vec<i32>,
+    /// Per item: samples where it is the visible surface (at the supersampled resolution).
+    pub visible_samples: Vec<u64>,
+    /// Per item: samples its triangles cover, ignoring occlusion.
+    pub total_samples: Vec<u64>,
+}
+
+impl Rendered {
+    /// Fraction of each item's own silhouette that is visible (0 for an item off screen).
+    pub fn visible_fraction(&self) -> Vec<f32> {
+        self.visible_samples
+            .iter()
+            .zip(&self.total_samples)
+            .map(|(&v, &t)| if t == 0 { 0.0 } else { v as f32 / t as f32 })
+            .collect()
+    }
+}
+
+/// A triangle in sample space: (x, y, depth) per corner, item, and its shade and normal.
+#[derive(Clone, Copy)]
+struct ScreenTri {
+    p: [[f32; 3]; 3],
+    item: u32,
+    /// Index into the face table (normal + shade).
+    face: u32,
+}
+
+/// Rows per parallel band. 16 rows of a 256..1536 px image is a few thousand samples: enough
+/// work per task that binning and rayon overhead stay small.
+const BAND: usize = 16;
+
+/// Render items with a camera. Items are drawn with ids equal to their index.
+pub fn render(items: &[RenderItem], camera: &Camera, opts: &RenderOptions) -> Result<Rendered> {
+    camera.validate()?;
+    opts.validate()?;
+    let ss = opts.supersample as usize;
+    let (w, h) = (opts.width as usize * ss, opts.height as usize * ss);
+    let m = camera.pixel_matrix(w as u32, h as u32);
+    let rot = camera.rotation();
+    let view = [rot[(2, 0)], rot[(2, 1)], rot[(2, 2)]];
+    // Light from the upper left of the viewer, slightly from the front.
+    let light = {
+        let l = rot.transpose() * nalgebra::Vector3::new(-0.45, 0.75, -0.5);
+        let l = l.normalize();
+        [l[0] as f32, l[1] as f32, l[2] as f32]
+    };
+
+    let mut tris: Vec<ScreenTri> = Vec::new();
+    // Per face: unit normal facing the camera, and shade factor.
+    let mut faces: Vec<([f32; 3], f32)> = Vec::new();
+    for (item, it) in items.iter().enumerate() {
+        let proj: Vec<[f32; 3]> = it
+            .mesh
+            .vertices
+            .iter()
+            .map(|v| {
+                let (x, y, z) = (v[0] as f64, v[1] as f64, v[2] as f64);
+                [
+                    (m[(0, 0)] * x + m[(0, 1)] * y + m[(0, 2)] * z + m[(0, 3)]) as f32,
+                    (m[(1, 0)] * x + m[(1, 1)] * y + m[(1, 2)] * z + m[(1, 3)]) as f32,
+                    (view[0] * x + view[1] * y + view[2] * z) as f32,
+                ]
+            })
+            .collect();
+        for t in &it.mesh.triangles {
+            let idx = [t[0] as usize, t[1] as usize, t[2] as usize];
+            if idx.iter().any(|&i| i >= proj.len()) {
+                return Err(BrickGeomError::InvalidArgument(format!(
+                    "mesh of item {item} has a triangle index beyond its {} vertices",
+                    proj.len()
+                )));
+            }
+            let [a, b, c] = idx.map(|i| it.mesh.vertices[i]);
+            let u = [b[0] - a[0], b[1] - a[1], b[2] - a[2]];
+            let v = [c[0] - a[0], c[1] - a[1], c[2] - a[2]];
+            let mut n = [
+                u[1] * v[2] - u[2] * v[1],
+                u[2] * v[0] - u[0] * v[2],
+                u[0] * v[1] - u[1] * v[0],
+            ];
+            let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+            if !(len > 1e-12) {
+                continue;
+            }
+            n = [n[0] / len, n[1] / len, n[2] / len];
+            // Two-sided: real LDraw meshes are not consistently wound.
+            let towards_camera = -(n[0] * view[0] as f32 + n[1] * view[1] as f32 + n[2] * view[2] as f32);
+            if towards_camera < 0.0 {
+                n = [-n[0], -n[1], -n[2]];
+            }
+            let diffuse = (n[0] * light[0] + n[1] * light[1] + n[2] * light[2]).max(0.0);
+            let shade = 0.62 + 0.38 * diffuse;
+            faces.push((n, shade));
+            tris.push(ScreenTri {
+                p: idx.map(|i| proj[i]),
+                item: item as u32,
+                face: (faces.len() - 1) as u32,
+            });
+        }
+    }
+
+    // Bin triangles into bands of rows.
+    let n_bands = h.div_ceil(BAND);
+    let mut bins: Vec<Vec<u32>> = vec![Vec::new(); n_bands];
+    for (i, t) in tris.iter().enumerate() {
+        let ymin = t.p.iter().map(|p| p[1]).fold(f32::MAX, f32::min);
+        let ymax = t.p.iter().map(|p| p[1]).fold(f32::MIN, f32::max);
+        if !(ymax >= 0.0 && ymin <= h as f32) {
+            continue;
+        }
+        let r0 = ((ymin - 0.5).floor().max(0.0) as usize).min(h - 1);
+        let r1 = ((ymax - 0.5).ceil().max(0.0) as usize).min(h - 1);
+        for b in bins.iter_mut().take(r1 / BAND + 1).skip(r0 / BAND) {
+            b.push(i as u32);
+        }
+    }
+
+    struct Band {
+        depth: Vec<f32>,
+        face: Vec<u32>,
+        item: Vec<i32>,
+        total: Vec<u64>,
+    }
+    let n_items = items.len();
+    let bands: Vec<Band> = bins
+        .par_iter()
+        .enumerate()
+        .map(|(b, bin)| {
+            let y0 = b * BAND;
+            let rows = BAND.min(h - y0);
+            let mut band = Band {
+                depth: vec![f32::INFINITY; rows * w],
+                face: vec![u32::MAX; rows * w],
+                item: vec![-1; rows * w],
+                total: vec![0; n_items],
+            };
+            // Union coverage per item: triangles come in item order, so a stamp per sample
+            // counts each sample once per item.
+            let mut stamp = vec![u32::MAX; rows * w];
+            for &ti in bin {
+                let t = &tris[ti as usize];
+                raster_triangle(t, y0, rows, w, |idx, z| {
+                    if stamp[idx] != t.item {
+                        stamp[idx] = t.item;
+                        band.total[t.item as usize] += 1;
+                    }
+                    if z < band.depth[idx] {
+                        band.depth[idx] = z;
+                        band.face[idx] = t.face;
+                        band.item[idx] = t.item as i32;
+                    }
+                });
+            }
+            band
+        })
+        .collect();
+    let mut depth = Vec::with_capacity(w * h);
+    let mut face = Vec::with_capacity(w * h);
+    let mut item = Vec::with_capacity(w * h);
+    let mut total = vec![0u64; n_items];
+    for b in bands {
+        depth.extend_from_slice(&b.depth);
+        face.extend_from_slice(&b.face);
+        item.extend_from_slice(&b.item);
+        for (t, x) in total.iter_mut().zip(&b.total) {
+            *t += x;
+        }
+    }
+    let mut visible = vec![0u64; n_items];
+    for &i in &item {
+        if i >= 0 {
+            visible[i as usize] += 1;
+        }
+    }
+
+    // Outlines at the sample resolution: a sample is on an edge when its right or lower
+    // neighbour shows another item, a depth jump or a crease; then the edge is thickened.
+    let is_edge = |a: usize, b: usize| -> bool {
+        if item[a] != item[b] {
+            return true;
+        }
+        if item[a] < 0 {
+            return false;
+        }
+        if (depth[a] - depth[b]).abs() > opts.depth_edge {
+            return true;
+        }
+        let (na, nb) = (faces[face[a] as usize].0, faces[face[b] as usize].0);
+        na[0] * nb[0] + na[1] * nb[1] + na[2] * nb[2] < opts.crease_cos
+    };
+    let line = (opts.line_px * ss as f32).round() as usize;
+    let mut edge = vec![false; w * h];
+    if line > 0 {
+        edge.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
+            for (x, e) in row.iter_mut().enumerate() {
+                let i = y * w + x;
+                *e = (x + 1 < w && is_edge(i, i + 1)) || (y + 1 < h && is_edge(i, i + w));
+            }
+        });
+        if line > 1 {
+            edge = dilate(&edge, w, h, line - 1);
+        }
+    }
+
+    // Shade samples, then box-filter to the output size.
+    let shade_sample = |i: usize| -> [f32; 3] {
+        if item[i] < 0 {
+            return opts.background.map(|c| c as f32);
+        }
+        let base = items[item[i] as usize].colour.map(|c| c as f32);
+        if edge[i] {
+            return outline_colour(base);
+        }
+        let s = faces[face[i] as usize].1;
+        base.map(|c| (c * s).min(255.0))
+    };
+    let (ow, oh) = (opts.width as usize, opts.height as usize);
+    let mut rgb = vec![0u8; ow * oh * 3];
+    let mut out_depth = vec![f32::INFINITY; ow * oh];
+    let mut out_ids = vec![-1i32; ow * oh];
+    rgb.par_chunks_mut(ow * 3)
+        .zip(out_depth.par_chunks_mut(ow))
+        .zip(out_ids.par_chunks_mut(ow))
+        .enumerate()
+        .for_each(|(y, ((rgb_row, d_row), id_row))| {
+            for x in 0..ow {
+                let mut acc = [0f32; 3];
+                for sy in 0..ss {
+                    for sx in 0..ss {
+                        let c = shade_sample((y * ss + sy) * w + x * ss + sx);
+                        for k in 0..3 {
+                            acc[k] += c[k];
+                        }
+                    }
+                }
+                let n = (ss * ss) as f32;
+                for k in 0..3 {
+                    rgb_row[x * 3 + k] = (acc[k] / n).round().clamp(0.0, 255.0) as u8;
+                }
+                let centre = (y * ss + ss / 2) * w + x * ss + ss / 2;
+                d_row[x] = depth[centre];
+                id_row[x] = item[centre];
+            }
+        });
+    Ok(Rendered {
+        width: opts.width,
+        height: opts.height,
+        rgb,
+        depth: out_depth,
+        ids: out_ids,
+        visible_samples: visible,
+        total_samples: total,
+    })
+}
+
+fn outline_colour(base: [f32; 3]) -> [f32; 3] {
+    let luma = 0.299 * base[0] + 0.587 * base[1] + 0.114 * base[2];
+    if luma < 60.0 {
+        // Dark parts get lighter lines, as printed manuals draw them.
+        [95.0, 95.0, 95.0]
+    } else {
+        base.map(|c| c * 0.18)
+    }
+}
+
+/// Square dilation of a boolean image by `r` samples.
+fn dilate(src: &[bool], w: usize, h: usize, r: usize) -> Vec<bool> {
+    // Separable: horizontal then vertical.
+    let mut tmp = vec![false; w * h];
+    tmp.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
+        for x in 0..w {
+            let (a, b) = (x.saturating_sub(r), (x + r).min(w - 1));
+            row[x] = src[y * w + a..=y * w + b].iter().any(|&e| e);
+        }
+    });
+    let mut out = vec![false; w * h];
+    out.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
+        let (a, b) = (y.saturating_sub(r), (y + r).min(h - 1));
+        for (x, o) in row.iter_mut().enumerate() {
+            *o = (a..=b).any(|yy| tmp[yy * w + x]);
+        }
+    });
+    out
+}
+
+/// Visit the samples of band rows [y0, y0 + rows) covered by a triangle, with interpolated depth.
+/// Samples are at (x + 0.5, y + 0.5); a top-left rule keeps shared edges from being drawn twice.
+#[inline]
+fn raster_triangle(t: &ScreenTri, y0: usize, rows: usize, w: usize, mut visit: impl FnMut(usize, f32)) {
+    let [a, b, c] = t.p;
+    let area = (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0]);
+    if area.abs() < 1e-9 || !area.is_finite() {
+        return;
+    }
+    // Orient counter-clockwise in sample space.
+    let (b, c, area) = if area < 0.0 { (c, b, -area) } else { (b, c, area) };
+    let xmin = a[0].min(b[0]).min(c[0]);
+    let xmax = a[0].max(b[0]).max(c[0]);
+    let ymin = a[1].min(b[1]).min(c[1]);
+    let ymax = a[1].max(b[1]).max(c[1]);
+    let x0 = ((xmin - 0.5).ceil().max(0.0)) as usize;
+    let x1 = ((xmax - 0.5).floor().min(w as f32 - 1.0)) as i64;
+    let ya = ((ymin - 0.5).ceil().max(y0 as f32)) as usize;
+    let yb = ((ymax - 0.5).floor().min((y0 + rows) as f32 - 1.0)) as i64;
+    if x1 < x0 as i64 || yb < ya as i64 {
+        return;
+    }
+    // Edge function of edge p->q at point s; with the top-left rule, a sample exactly on an edge
+    // belongs to the triangle only for top or left edges.
+    let edge = |p: [f32; 3], q: [f32; 3]| {
+        let (dx, dy) = (q[0] - p[0], q[1] - p[1]);
+        // A shared edge runs in opposite directions in its two triangles, so exactly one of
+        // them includes samples lying on it.
+        let inclusive = dy < 0.0 || (dy == 0.0 && dx > 0.0);
+        (p, dx, dy, inclusive)
+    };
+    let edges = [edge(b, c), edge(c, a), edge(a, b)];
+    let inv = 1.0 / area;
+    for y in ya..=(yb as usize) {
+        let sy = y as f32 + 0.5;
+        for x in x0..=(x1 as usize) {
+            let sx = x as f32 + 0.5;
+            let mut wts = [0f32; 3];
+            let mut inside = true;
+            for (k, (p, dx, dy, inclusive)) in edges.iter().enumerate() {
+                // cross(q - p, s - p): >= 0 inside, given cross(b - a, c - a) > 0.
+                let e = dx * (sy - p[1]) - dy * (sx - p[0]);
+                if e < 0.0 || (e == 0.0 && !inclusive) {
+                    inside = false;
+                    break;
+                }
+                wts[k] = e;
+            }
+            if !inside {
+                continue;
+            }
+            let z = (wts[0] * a[2] + wts[1] * b[2] + wts[2] * c[2]) * inv;
+            visit((y - y0) * w + x, z);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// An axis-aligned box [lo, hi] in LDU.
+    fn cuboid(lo: [f32; 3], hi: [f32; 3]) -> Mesh {
+        let v = |x: bool, y: bool, z: bool| {
+            [
+                if x { hi[0] } else { lo[0] },
+                if y { hi[1] } else { lo[1] },
+                if z { hi[2] } else { lo[2] },
+            ]
+        };
+        let vertices = (0..8).map(|i| v(i & 1 != 0, i & 2 != 0, i & 4 != 0)).collect();
+        let quads = [
+            [0, 2, 3, 1],
+            [4, 5, 7, 6],
+            [0, 1, 5, 4],
+            [2, 6, 7, 3],
+            [0, 4, 6, 2],
+            [1, 3, 7, 5],
+        ];
+        let triangles = quads
+            .iter()
+            .flat_map(|q| [[q[0], q[1], q[2]], [q[0], q[2], q[3]]])
+            .collect();
+        Mesh {
+            vertices,
+            triangles,
+        }
+    }
+
+    #[test]
+    fn box_mask_area_is_analytic() {
+        let (x, y, z) = (80.0f64, 24.0, 40.0);
+        let mesh = cuboid([-40.0, 0.0, -20.0], [40.0, 24.0, 20.0]);
+        for (el, az) in [(30.0, 225.0), (20.0, 215.0), (40.0, 235.0), (0.0, 0.0), (89.0, 10.0)] {
+            let cam = Camera::new(el, az, 0.0, 0.02, [0.0, 0.0]).unwrap();
+            let opts = RenderOptions::new(512, 512);
+            let r = render(&[RenderItem { mesh: &mesh, colour: [200, 0, 0] }], &cam, &opts).unwrap();
+            let w = cam.rotation().row(2).transpose();
+            let area_ldu = x * y * w[2].abs() + y * z * w[0].abs() + x * z * w[1].abs();
+            let px_per_ldu = 0.02 * 256.0;
+            let expected = area_ldu * px_per_ldu * px_per_ldu;
+            let got = r.ids.iter().filter(|&&i| i == 0).count() as f64;
+            assert!((got - expected).abs() / expected < 0.01, "el {el} az {az}: {got} vs {expected}");
+            assert_eq!(r.visible_samples[0], got as u64);
+            assert_eq!(r.total_samples[0], got as u64);
+        }
+    }
+
+    #[test]
+    fn occlusion_ids_depth_and_visibility() {
+        let front = cuboid([-20.0, 0.0, -20.0], [20.0, 24.0, 20.0]);
+        let back = cuboid([-60.0, 0.0, -200.0], [60.0, 24.0, -160.0]);
+        // Camera on +z looking down -z: `front` is nearer and hides part of `back`.
+        let cam = Camera::new(0.0, 0.0, 0.0, 0.01, [0.0, 0.0]).unwrap();
+        let items = [
+            RenderItem { mesh: &back, colour: [0, 0, 200] },
+            RenderItem { mesh: &front, colour: [200, 0, 0] },
+        ];
+        let r = render(&items, &cam, &RenderOptions::new(256, 256)).unwrap();
+        let frac = r.visible_fraction();
+        assert!((frac[1] - 1.0).abs() < 1e-6);
+        assert!((frac[0] - 2.0 / 3.0).abs() < 0.02, "back visible {}", frac[0]);
+        // ids and depth agree: wherever the front box is seen, depth is its face at z=20
+        for (i, &id) in r.ids.iter().enumerate() {
+            match id {
+                1 => assert!((r.depth[i] + 20.0).abs() < 1e-3),
+                0 => assert!((r.depth[i] - 160.0).abs() < 1e-3),
+                _ => assert!(r.depth[i].is_infinite()),
+            }
+        }
+        // background stays white, parts are not
+        assert_eq!(&r.rgb[0..3], &[255, 255, 255]);
+    }
+
+    #[test]
+    fn supersampling_keeps_ids_at_pixel_centres() {
+        let mesh = cuboid([-40.0, 0.0, -20.0], [40.0, 24.0, 20.0]);
+        let cam = Camera::new(30.0, 225.0, 0.0, 0.015, [0.0, 0.0]).unwrap();
+        let a = render(&[RenderItem { mesh: &mesh, colour: [9, 9, 9] }], &cam, &RenderOptions::new(128, 128)).unwrap();
+        let mut o = RenderOptions::new(128, 128);
+        o.supersample = 3;
+        let b = render(&[RenderItem { mesh: &mesh, colour: [9, 9, 9] }], &cam, &o).unwrap();
+        assert_eq!(a.ids, b.ids);
+        // anti-aliased colour has intermediate values on the silhouette
+        let grey = |r: &Rendered| r.rgb.chunks(3).filter(|p| p[0] > 20 && p[0] < 240).count();
+        assert!(grey(&b) > grey(&a));
+    }
+
+    #[test]
+    fn bad_sizes_are_errors() {
+        let cam = Camera::new(30.0, 225.0, 0.0, 0.015, [0.0, 0.0]).unwrap();
+        assert!(render(&[], &cam, &RenderOptions::new(0, 256)).is_err());
+        assert!(render(&[], &cam, &RenderOptions::new(100_000, 256)).is_err());
+        let mut o = RenderOptions::new(64, 64);
+        o.supersample = 2;
+        assert!(render(&[], &cam, &o).is_err());
+        let empty = render(&[], &cam, &RenderOptions::new(8, 8)).unwrap();
+        assert!(empty.ids.iter().all(|&i| i == -1));
+    }
+}
