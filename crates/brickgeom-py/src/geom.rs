@@ -2,7 +2,7 @@
 
 use std::sync::Arc;
 
-use brickgeom::component::Brick;
+use brickgeom::component::{Brick, MAIN_COLOUR};
 use brickgeom::{library, Assembly, AttachKind, Component, GroundSearch, Lattice, Pose};
 use ndarray::{Array1, Array2};
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyArray3, PyReadonlyArray2};
@@ -112,9 +112,25 @@ impl PyComponent {
     }
 
     /// A submodule from parts and their poses: `poses` is an (N, 4) int array of
-    /// `[yaw, x, y, z]` rows in the submodule's frame.
+    /// `[yaw, x, y, z]` rows in the submodule's frame; `colours` LDraw codes (default 16, the
+    /// colour the submodule is placed with).
     #[staticmethod]
-    fn from_bricks(name: &str, parts: Vec<String>, poses: PyReadonlyArray2<'_, i64>) -> PyResult<Self> {
+    #[pyo3(signature = (name, parts, poses, colours=None))]
+    fn from_bricks(
+        name: &str,
+        parts: Vec<String>,
+        poses: PyReadonlyArray2<'_, i64>,
+        colours: Option<Vec<i32>>,
+    ) -> PyResult<Self> {
+        if let Some(c) = &colours {
+            if c.len() != parts.len() {
+                return Err(PyValueError::new_err(format!(
+                    "colours has {} entries for {} parts",
+                    c.len(),
+                    parts.len()
+                )));
+            }
+        }
         let a = poses.as_array();
         if a.ncols() != 4 || a.nrows() != parts.len() {
             return Err(PyValueError::new_err(format!(
@@ -134,6 +150,7 @@ impl PyComponent {
             bricks.push(Brick {
                 part,
                 pose: pose(row[0], (coords[0], coords[1], coords[2]))?,
+                colour: colours.as_ref().map_or(MAIN_COLOUR, |c| c[i]),
             });
         }
         Ok(PyComponent {
@@ -180,13 +197,13 @@ impl PyComponent {
         self.inner.topmost.clone()
     }
 
-    /// `[(part_id, yaw, (x, y, z)), ...]` in the component frame.
+    /// `[(part_id, yaw, (x, y, z), colour), ...]` in the component frame.
     #[getter]
-    fn bricks(&self) -> Vec<(&'static str, u8, Int3)> {
+    fn bricks(&self) -> Vec<(&'static str, u8, Int3, i32)> {
         self.inner
             .bricks
             .iter()
-            .map(|b| (b.part, b.pose.yaw, tup(b.pose.t)))
+            .map(|b| (b.part, b.pose.yaw, tup(b.pose.t), b.colour))
             .collect()
     }
 
@@ -268,9 +285,18 @@ impl PyAssembly {
         self.clone()
     }
 
-    /// Place a component (collision and ground checked, connection not required); returns its id.
-    fn add(&mut self, component: &PyComponent, yaw: i64, t: Int3) -> PyResult<u32> {
-        self.inner.add(component.inner.clone(), pose(yaw, t)?).py()
+    /// Place a component (collision and ground checked, connection not required) with an
+    /// LDraw colour code; returns its id.
+    #[pyo3(signature = (component, yaw, t, colour=16))]
+    fn add(&mut self, component: &PyComponent, yaw: i64, t: Int3, colour: i32) -> PyResult<u32> {
+        let id = self.inner.add(component.inner.clone(), pose(yaw, t)?).py()?;
+        self.inner.set_colour(id, colour).py()?;
+        Ok(id)
+    }
+
+    /// The LDraw colour code of an instance.
+    fn colour(&self, id: u32) -> PyResult<i32> {
+        Ok(self.inner.instance(id).py()?.colour)
     }
 
     /// Place a component only if it is valid; returns `(id, attach_kind)`.

@@ -6,6 +6,7 @@
 mod errors;
 mod geom;
 mod ldraw;
+mod render;
 
 use pyo3::prelude::*;
 
@@ -14,6 +15,7 @@ fn _brickgeom(m: &Bound<'_, PyModule>) -> PyResult<()> {
     errors::register(m)?;
     geom::register(m)?;
     ldraw::register(m)?;
+    render::register(m)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     Ok(())
 }

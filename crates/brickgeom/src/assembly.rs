@@ -10,7 +10,7 @@ use std::sync::{Arc, OnceLock};
 use ndarray::Array3;
 use rayon::prelude::*;
 
-use crate::component::{cells_around, Component};
+use crate::component::{cells_around, Brick, Component, MAIN_COLOUR};
 use crate::error::{BrickGeomError, Result};
 use crate::lattice::{check_range, pack, Lattice, PointMap, PointSet, Pose};
 
@@ -48,6 +48,8 @@ pub struct Placement {
 pub struct Instance {
     pub component: Arc<Component>,
     pub pose: Pose,
+    /// LDraw colour code the instance is placed with (applies to its main-colour bricks).
+    pub colour: i32,
     /// World voxels, sorted.
     pub voxels: Vec<Lattice>,
     /// World stud points, sorted.
@@ -187,13 +189,25 @@ struct Prepared<'a> {
 impl<'a> Prepared<'a> {
     fn new(component: &'a Component, yaw: u8) -> Self {
         let rot = Pose::new(yaw, [0, 0, 0]);
-        let voxels: Vec<Lattice> = component.voxels.iter().map(|&v| rot.apply_cell(v)).collect();
+        let voxels: Vec<Lattice> = component
+            .voxels
+            .iter()
+            .map(|&v| rot.apply_cell(v))
+            .collect();
         let (lo, hi) = bounds(&voxels).unwrap_or(([0; 3], [0; 3]));
         Prepared {
             component,
             yaw,
-            studs: component.studs.iter().map(|&p| rot.apply_point(p)).collect(),
-            anti_studs: component.anti_studs.iter().map(|&p| rot.apply_point(p)).collect(),
+            studs: component
+                .studs
+                .iter()
+                .map(|&p| rot.apply_point(p))
+                .collect(),
+            anti_studs: component
+                .anti_studs
+                .iter()
+                .map(|&p| rot.apply_point(p))
+                .collect(),
             voxels,
             lo,
             hi,
@@ -289,9 +303,7 @@ impl Assembly {
 
     /// True if a stud at `p` has nothing on it.
     pub fn stud_is_free(&self, p: Lattice) -> bool {
-        cells_around(p, p[1])
-            .iter()
-            .all(|&c| self.grid.get(c) == 0)
+        cells_around(p, p[1]).iter().all(|&c| self.grid.get(c) == 0)
     }
 
     /// True if an anti-stud at `p` has nothing under it and is above the ground.
@@ -305,7 +317,12 @@ impl Assembly {
     /// Every way the placement connects (empty: not connected). Does not check collision.
     pub fn attach_kinds(&self, component: &Component, pose: &Pose) -> Vec<AttachKind> {
         let prep = Prepared::new(component, pose.yaw);
-        self.kinds_of(&prep, pose.t, |p| self.is_free_stud(p), |p| self.is_free_anti_stud(p))
+        self.kinds_of(
+            &prep,
+            pose.t,
+            |p| self.is_free_stud(p),
+            |p| self.is_free_anti_stud(p),
+        )
     }
 
     fn is_free_stud(&self, p: Lattice) -> bool {
@@ -348,7 +365,9 @@ impl Assembly {
         check_range(add(prep.lo, t))?;
         check_range(add(prep.hi, t))?;
         if prep.lo[1] + t[1] < 0 {
-            return Err(BrickGeomError::BelowGround { y: prep.lo[1] + t[1] });
+            return Err(BrickGeomError::BelowGround {
+                y: prep.lo[1] + t[1],
+            });
         }
         if let Some(instance) = prep.voxels.iter().find_map(|&v| self.occupant(add(v, t))) {
             return Err(BrickGeomError::Collision { instance });
@@ -374,7 +393,12 @@ impl Assembly {
             });
         }
         let prep = Prepared::new(component, pose.yaw);
-        self.check_prepared(&prep, pose.t, |p| self.is_free_stud(p), |p| self.is_free_anti_stud(p))
+        self.check_prepared(
+            &prep,
+            pose.t,
+            |p| self.is_free_stud(p),
+            |p| self.is_free_anti_stud(p),
+        )
     }
 
     /// `check` for many poses of one component, in parallel; results in input order.
@@ -420,18 +444,30 @@ impl Assembly {
             self.grid.ensure(lo, hi);
         }
         for &v in &voxels {
-            let i = self.grid.index(v).expect("grid was grown to cover the voxels");
+            let i = self
+                .grid
+                .index(v)
+                .expect("grid was grown to cover the voxels");
             self.grid.cells[i] = id + 1;
         }
         for &s in &studs {
-            self.stud_index.entry(pack(s)).or_insert((s, Vec::new())).1.push(id);
+            self.stud_index
+                .entry(pack(s))
+                .or_insert((s, Vec::new()))
+                .1
+                .push(id);
         }
         for &a in &anti_studs {
-            self.anti_stud_index.entry(pack(a)).or_insert((a, Vec::new())).1.push(id);
+            self.anti_stud_index
+                .entry(pack(a))
+                .or_insert((a, Vec::new()))
+                .1
+                .push(id);
         }
         self.instances.push(Some(Instance {
             component,
             pose,
+            colour: MAIN_COLOUR,
             voxels,
             studs,
             anti_studs,
@@ -439,8 +475,22 @@ impl Assembly {
         Ok(id)
     }
 
+    /// Set the LDraw colour code of a placed instance.
+    pub fn set_colour(&mut self, id: u32, colour: i32) -> Result<()> {
+        self.instances
+            .get_mut(id as usize)
+            .and_then(|slot| slot.as_mut())
+            .ok_or(BrickGeomError::NoSuchInstance { id })?
+            .colour = colour;
+        Ok(())
+    }
+
     /// Place a component only if `check` accepts it; returns the id and the attach kind.
-    pub fn add_checked(&mut self, component: Arc<Component>, pose: Pose) -> Result<(u32, AttachKind)> {
+    pub fn add_checked(
+        &mut self,
+        component: Arc<Component>,
+        pose: Pose,
+    ) -> Result<(u32, AttachKind)> {
         let kind = self.check(&component, &pose)?;
         let id = self.add(component, pose)?;
         Ok((id, kind))
@@ -483,9 +533,13 @@ impl Assembly {
     fn free_points(&self) -> Arc<FreePoints> {
         self.free_cache
             .get_or_init(|| {
-                let collect = |index: &PointMap<(Lattice, Vec<u32>)>, free: &dyn Fn(Lattice) -> bool| {
-                    let mut v: Vec<Lattice> =
-                        index.values().map(|(p, _)| *p).filter(|&p| free(p)).collect();
+                let collect = |index: &PointMap<(Lattice, Vec<u32>)>,
+                               free: &dyn Fn(Lattice) -> bool| {
+                    let mut v: Vec<Lattice> = index
+                        .values()
+                        .map(|(p, _)| *p)
+                        .filter(|&p| free(p))
+                        .collect();
                     v.sort_unstable();
                     let set: PointSet = v.iter().map(|&p| pack(p)).collect();
                     (v, set)
@@ -541,13 +595,15 @@ impl Assembly {
         self.id_grid(lo, hi).mapv(|v| u8::from(v >= 0))
     }
 
-    /// All placed bricks flattened to (part, world pose), by instance id.
-    pub fn bricks(&self) -> Vec<crate::component::Brick> {
+    /// All placed bricks flattened to (part, world pose, colour), by instance id; a brick of
+    /// main colour takes its instance's colour.
+    pub fn bricks(&self) -> Vec<Brick> {
         self.instances()
             .flat_map(|(_, inst)| {
-                inst.component.bricks.iter().map(move |b| crate::component::Brick {
+                inst.component.bricks.iter().map(move |b| Brick {
                     part: b.part,
                     pose: inst.pose.compose(&b.pose),
+                    colour: if b.colour == MAIN_COLOUR { inst.colour } else { b.colour },
                 })
             })
             .collect()
@@ -589,10 +645,18 @@ impl Assembly {
             free_studs.len() * prep.anti_studs.len() + free_anti.len() * prep.studs.len(),
         );
         for s in free_studs {
-            ts.extend(prep.anti_studs.iter().map(|a| [s[0] - a[0], s[1] - a[1], s[2] - a[2]]));
+            ts.extend(
+                prep.anti_studs
+                    .iter()
+                    .map(|a| [s[0] - a[0], s[1] - a[1], s[2] - a[2]]),
+            );
         }
         for f in free_anti {
-            ts.extend(prep.studs.iter().map(|b| [f[0] - b[0], f[1] - b[1], f[2] - b[2]]));
+            ts.extend(
+                prep.studs
+                    .iter()
+                    .map(|b| [f[0] - b[0], f[1] - b[1], f[2] - b[2]]),
+            );
         }
         let region = match ground {
             GroundSearch::Off => None,
@@ -640,12 +704,17 @@ impl Assembly {
             .par_iter()
             .with_min_len(256)
             .map(|&t| {
-                self.check_prepared(&prep, t, |q| fs.contains(&pack(q)), |q| fa.contains(&pack(q)))
-                    .ok()
-                    .map(|kind| Placement {
-                        pose: Pose::new(prep.yaw, t),
-                        kind,
-                    })
+                self.check_prepared(
+                    &prep,
+                    t,
+                    |q| fs.contains(&pack(q)),
+                    |q| fa.contains(&pack(q)),
+                )
+                .ok()
+                .map(|kind| Placement {
+                    pose: Pose::new(prep.yaw, t),
+                    kind,
+                })
             })
             .collect();
         let _ = prep.component;

@@ -7,11 +7,16 @@ use crate::lattice::{rotate_cell, rotate_point, Lattice, Pose};
 use crate::library::part;
 use crate::mesh::Mesh;
 
-/// One brick inside a component: its library id and its pose in the component frame.
+/// LDraw's "main colour" code: the brick takes the colour of whatever places it.
+pub const MAIN_COLOUR: i32 = 16;
+
+/// One brick inside a component: its library id, its pose in the component frame and its LDraw
+/// colour code (`MAIN_COLOUR` = inherit the colour the component is placed with).
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Brick {
     pub part: &'static str,
     pub pose: Pose,
+    pub colour: i32,
 }
 
 /// A placeable unit: a primitive part or a submodule (a union of placed bricks).
@@ -59,6 +64,7 @@ impl Component {
             vec![Brick {
                 part: def.id,
                 pose: Pose::identity(),
+                colour: MAIN_COLOUR,
             }],
         )?;
         c.is_submodule = false;

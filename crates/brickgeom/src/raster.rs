@@ -10,13 +10,36 @@ use rayon::prelude::*;
 
 use crate::camera::Camera;
 use crate::error::{BrickGeomError, Result};
+use crate::lattice::Pose;
 use crate::mesh::Mesh;
 
-/// One thing to draw: a mesh already in world LDU (y up), its colour and its instance id.
+/// One thing to draw: a mesh (LDU, y up) placed by a lattice pose, its colour, and the id it
+/// reports in the id image. Several items may share an id (the bricks of one submodule); items of
+/// one id must be consecutive.
 #[derive(Debug, Clone, Copy)]
 pub struct RenderItem<'a> {
     pub mesh: &'a Mesh,
+    pub pose: Pose,
     pub colour: [u8; 3],
+    pub id: u32,
+}
+
+impl<'a> RenderItem<'a> {
+    /// An item drawn where its mesh already is, with id 0.
+    pub fn new(mesh: &'a Mesh, colour: [u8; 3]) -> Self {
+        RenderItem {
+            mesh,
+            pose: Pose::identity(),
+            colour,
+            id: 0,
+        }
+    }
+
+    /// The same item with another id.
+    pub fn with_id(mut self, id: u32) -> Self {
+        self.id = id;
+        self
+    }
 }
 
 /// Rendering options.
@@ -29,8 +52,9 @@ pub struct RenderOptions {
     /// Outline width in output pixels (0 = no outlines).
     pub line_px: f32,
     pub background: [u8; 3],
-    /// Depth jump (LDU) between neighbouring samples that counts as an outline.
-    pub depth_edge: f32,
+    /// Offset (LDU) between two parallel faces of one item that counts as an outline (a step,
+    /// such as a stud top above a plate top).
+    pub plane_edge: f32,
     /// Cosine of the largest angle between neighbouring face normals that is not a crease.
     pub crease_cos: f32,
 }
@@ -44,7 +68,7 @@ impl RenderOptions {
             supersample: 1,
             line_px: (width.max(height) as f32 / 256.0).max(1.0),
             background: [255, 255, 255],
-            depth_edge: 6.0,
+            plane_edge: 1.0,
             crease_cos: 0.8,
         }
     }
@@ -81,11 +105,11 @@ pub struct Rendered {
     pub rgb: Vec<u8>,
     /// Depth along the view axis (LDU, larger = farther); `f32::INFINITY` on the background.
     pub depth: Vec<f32>,
-    /// Index of the item seen at each pixel; -1 on the background.
+    /// Id of the item seen at each pixel; -1 on the background.
     pub ids: Vec<i32>,
-    /// Per item: samples where it is the visible surface (at the supersampled resolution).
+    /// Per id (0..=max id): samples where it is the visible surface (supersampled resolution).
     pub visible_samples: Vec<u64>,
-    /// Per item: samples its triangles cover, ignoring occlusion.
+    /// Per id: samples its triangles cover, ignoring occlusion.
     pub total_samples: Vec<u64>,
 }
 
@@ -100,10 +124,11 @@ impl Rendered {
     }
 }
 
-/// A triangle in sample space: (x, y, depth) per corner, item, and its shade and normal.
+/// A triangle in sample space: (x, y, depth) per corner, item index, and its face.
 #[derive(Clone, Copy)]
 struct ScreenTri {
     p: [[f32; 3]; 3],
+    /// Index into `items`.
     item: u32,
     /// Index into the face table (normal + shade).
     face: u32,
@@ -113,10 +138,16 @@ struct ScreenTri {
 /// work per task that binning and rayon overhead stay small.
 const BAND: usize = 16;
 
-/// Render items with a camera. Items are drawn with ids equal to their index.
+/// Render items with a camera.
 pub fn render(items: &[RenderItem], camera: &Camera, opts: &RenderOptions) -> Result<Rendered> {
     camera.validate()?;
     opts.validate()?;
+    if items.windows(2).any(|p| p[1].id < p[0].id) {
+        return Err(BrickGeomError::InvalidArgument(
+            "render items must be sorted by id (items of one id consecutive)".into(),
+        ));
+    }
+    let n_ids = items.iter().map(|i| i.id as usize + 1).max().unwrap_or(0);
     let ss = opts.supersample as usize;
     let (w, h) = (opts.width as usize * ss, opts.height as usize * ss);
     let m = camera.pixel_matrix(w as u32, h as u32);
@@ -130,14 +161,15 @@ pub fn render(items: &[RenderItem], camera: &Camera, opts: &RenderOptions) -> Re
     };
 
     let mut tris: Vec<ScreenTri> = Vec::new();
-    // Per face: unit normal facing the camera, and shade factor.
-    let mut faces: Vec<([f32; 3], f32)> = Vec::new();
+    // Per face: unit normal facing the camera, plane offset n . p (LDU) and shade factor.
+    let mut faces: Vec<([f32; 3], f32, f32)> = Vec::new();
     for (item, it) in items.iter().enumerate() {
         let proj: Vec<[f32; 3]> = it
             .mesh
             .vertices
             .iter()
             .map(|v| {
+                let v = it.pose.apply_ldu(*v);
                 let (x, y, z) = (v[0] as f64, v[1] as f64, v[2] as f64);
                 [
                     (m[(0, 0)] * x + m[(0, 1)] * y + m[(0, 2)] * z + m[(0, 3)]) as f32,
@@ -154,7 +186,7 @@ pub fn render(items: &[RenderItem], camera: &Camera, opts: &RenderOptions) -> Re
                     proj.len()
                 )));
             }
-            let [a, b, c] = idx.map(|i| it.mesh.vertices[i]);
+            let [a, b, c] = idx.map(|i| it.pose.apply_ldu(it.mesh.vertices[i]));
             let u = [b[0] - a[0], b[1] - a[1], b[2] - a[2]];
             let v = [c[0] - a[0], c[1] - a[1], c[2] - a[2]];
             let mut n = [
@@ -174,7 +206,8 @@ pub fn render(items: &[RenderItem], camera: &Camera, opts: &RenderOptions) -> Re
             }
             let diffuse = (n[0] * light[0] + n[1] * light[1] + n[2] * light[2]).max(0.0);
             let shade = 0.62 + 0.38 * diffuse;
-            faces.push((n, shade));
+            let offset = n[0] * a[0] + n[1] * a[1] + n[2] * a[2];
+            faces.push((n, offset, shade));
             tris.push(ScreenTri {
                 p: idx.map(|i| proj[i]),
                 item: item as u32,
@@ -205,7 +238,6 @@ pub fn render(items: &[RenderItem], camera: &Camera, opts: &RenderOptions) -> Re
         item: Vec<i32>,
         total: Vec<u64>,
     }
-    let n_items = items.len();
     let bands: Vec<Band> = bins
         .par_iter()
         .enumerate()
@@ -216,17 +248,18 @@ pub fn render(items: &[RenderItem], camera: &Camera, opts: &RenderOptions) -> Re
                 depth: vec![f32::INFINITY; rows * w],
                 face: vec![u32::MAX; rows * w],
                 item: vec![-1; rows * w],
-                total: vec![0; n_items],
+                total: vec![0; n_ids],
             };
             // Union coverage per item: triangles come in item order, so a stamp per sample
             // counts each sample once per item.
             let mut stamp = vec![u32::MAX; rows * w];
             for &ti in bin {
                 let t = &tris[ti as usize];
+                let id = items[t.item as usize].id;
                 raster_triangle(t, y0, rows, w, |idx, z| {
-                    if stamp[idx] != t.item {
-                        stamp[idx] = t.item;
-                        band.total[t.item as usize] += 1;
+                    if stamp[idx] != id {
+                        stamp[idx] = id;
+                        band.total[id as usize] += 1;
                     }
                     if z < band.depth[idx] {
                         band.depth[idx] = z;
@@ -241,7 +274,7 @@ pub fn render(items: &[RenderItem], camera: &Camera, opts: &RenderOptions) -> Re
     let mut depth = Vec::with_capacity(w * h);
     let mut face = Vec::with_capacity(w * h);
     let mut item = Vec::with_capacity(w * h);
-    let mut total = vec![0u64; n_items];
+    let mut total = vec![0u64; n_ids];
     for b in bands {
         depth.extend_from_slice(&b.depth);
         face.extend_from_slice(&b.face);
@@ -250,27 +283,33 @@ pub fn render(items: &[RenderItem], camera: &Camera, opts: &RenderOptions) -> Re
             *t += x;
         }
     }
-    let mut visible = vec![0u64; n_items];
-    for &i in &item {
-        if i >= 0 {
-            visible[i as usize] += 1;
+    let mut visible = vec![0u64; n_ids];
+    let id_at = |i: usize| -> i32 {
+        match item[i] {
+            -1 => -1,
+            k => items[k as usize].id as i32,
+        }
+    };
+    for i in 0..item.len() {
+        if item[i] >= 0 {
+            visible[id_at(i) as usize] += 1;
         }
     }
 
     // Outlines at the sample resolution: a sample is on an edge when its right or lower
-    // neighbour shows another item, a depth jump or a crease; then the edge is thickened.
+    // neighbour shows another item, a crease, or a parallel face at another level; then the
+    // edge is thickened. Comparing planes rather than depths keeps faces seen at a grazing angle
+    // (whose depth changes fast from sample to sample) free of false outlines.
     let is_edge = |a: usize, b: usize| -> bool {
-        if item[a] != item[b] {
+        if id_at(a) != id_at(b) {
             return true;
         }
-        if item[a] < 0 {
+        if item[a] < 0 || face[a] == face[b] {
             return false;
         }
-        if (depth[a] - depth[b]).abs() > opts.depth_edge {
-            return true;
-        }
-        let (na, nb) = (faces[face[a] as usize].0, faces[face[b] as usize].0);
-        na[0] * nb[0] + na[1] * nb[1] + na[2] * nb[2] < opts.crease_cos
+        let (fa, fb) = (&faces[face[a] as usize], &faces[face[b] as usize]);
+        let dot = fa.0[0] * fb.0[0] + fa.0[1] * fb.0[1] + fa.0[2] * fb.0[2];
+        dot < opts.crease_cos || (dot > 0.999 && (fa.1 - fb.1).abs() > opts.plane_edge)
     };
     let line = (opts.line_px * ss as f32).round() as usize;
     let mut edge = vec![false; w * h];
@@ -295,7 +334,7 @@ pub fn render(items: &[RenderItem], camera: &Camera, opts: &RenderOptions) -> Re
         if edge[i] {
             return outline_colour(base);
         }
-        let s = faces[face[i] as usize].1;
+        let s = faces[face[i] as usize].2;
         base.map(|c| (c * s).min(255.0))
     };
     let (ow, oh) = (opts.width as usize, opts.height as usize);
@@ -323,7 +362,7 @@ pub fn render(items: &[RenderItem], camera: &Camera, opts: &RenderOptions) -> Re
                 }
                 let centre = (y * ss + ss / 2) * w + x * ss + ss / 2;
                 d_row[x] = depth[centre];
-                id_row[x] = item[centre];
+                id_row[x] = id_at(centre);
             }
         });
     Ok(Rendered {
@@ -463,7 +502,7 @@ mod tests {
         for (el, az) in [(30.0, 225.0), (20.0, 215.0), (40.0, 235.0), (0.0, 0.0), (89.0, 10.0)] {
             let cam = Camera::new(el, az, 0.0, 0.02, [0.0, 0.0]).unwrap();
             let opts = RenderOptions::new(512, 512);
-            let r = render(&[RenderItem { mesh: &mesh, colour: [200, 0, 0] }], &cam, &opts).unwrap();
+            let r = render(&[RenderItem::new(&mesh, [200, 0, 0])], &cam, &opts).unwrap();
             let w = cam.rotation().row(2).transpose();
             let area_ldu = x * y * w[2].abs() + y * z * w[0].abs() + x * z * w[1].abs();
             let px_per_ldu = 0.02 * 256.0;
@@ -482,8 +521,8 @@ mod tests {
         // Camera on +z looking down -z: `front` is nearer and hides part of `back`.
         let cam = Camera::new(0.0, 0.0, 0.0, 0.01, [0.0, 0.0]).unwrap();
         let items = [
-            RenderItem { mesh: &back, colour: [0, 0, 200] },
-            RenderItem { mesh: &front, colour: [200, 0, 0] },
+            RenderItem::new(&back, [0, 0, 200]),
+            RenderItem::new(&front, [200, 0, 0]).with_id(1),
         ];
         let r = render(&items, &cam, &RenderOptions::new(256, 256)).unwrap();
         let frac = r.visible_fraction();
@@ -505,10 +544,10 @@ mod tests {
     fn supersampling_keeps_ids_at_pixel_centres() {
         let mesh = cuboid([-40.0, 0.0, -20.0], [40.0, 24.0, 20.0]);
         let cam = Camera::new(30.0, 225.0, 0.0, 0.015, [0.0, 0.0]).unwrap();
-        let a = render(&[RenderItem { mesh: &mesh, colour: [9, 9, 9] }], &cam, &RenderOptions::new(128, 128)).unwrap();
+        let a = render(&[RenderItem::new(&mesh, [9, 9, 9])], &cam, &RenderOptions::new(128, 128)).unwrap();
         let mut o = RenderOptions::new(128, 128);
         o.supersample = 3;
-        let b = render(&[RenderItem { mesh: &mesh, colour: [9, 9, 9] }], &cam, &o).unwrap();
+        let b = render(&[RenderItem::new(&mesh, [9, 9, 9])], &cam, &o).unwrap();
         assert_eq!(a.ids, b.ids);
         // anti-aliased colour has intermediate values on the silhouette
         let grey = |r: &Rendered| r.rgb.chunks(3).filter(|p| p[0] > 20 && p[0] < 240).count();

@@ -1,0 +1,197 @@
+//! Cameras and rendering.
+
+use std::collections::HashMap;
+use std::path::PathBuf;
+use std::sync::{Arc, Mutex, OnceLock};
+
+use brickgeom::camera::Camera;
+use brickgeom::colours::ColourTable;
+use brickgeom::raster::RenderOptions;
+use brickgeom::scene::{render_assembly, MeshSource};
+use ndarray::{Array1, Array2, Array3};
+use numpy::{IntoPyArray, PyArray1, PyArray2, PyReadonlyArray2};
+use pyo3::exceptions::PyValueError;
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+
+use crate::errors::IntoPyResult;
+use crate::geom::PyAssembly;
+
+/// A weak-perspective camera (angles in degrees, scale in NDC per LDU, translation in NDC).
+#[pyclass(name = "Camera", module = "mepnet._brickgeom", frozen)]
+#[derive(Clone)]
+pub struct PyCamera {
+    pub inner: Camera,
+}
+
+#[pymethods]
+impl PyCamera {
+    #[new]
+    #[pyo3(signature = (elevation=30.0, azimuth=225.0, roll=0.0, scale=0.01, translation=(0.0, 0.0)))]
+    fn new(elevation: f64, azimuth: f64, roll: f64, scale: f64, translation: (f64, f64)) -> PyResult<Self> {
+        Ok(PyCamera {
+            inner: Camera::new(elevation, azimuth, roll, scale, [translation.0, translation.1]).py()?,
+        })
+    }
+
+    #[getter]
+    fn elevation(&self) -> f64 {
+        self.inner.elevation
+    }
+    #[getter]
+    fn azimuth(&self) -> f64 {
+        self.inner.azimuth
+    }
+    #[getter]
+    fn roll(&self) -> f64 {
+        self.inner.roll
+    }
+    #[getter]
+    fn scale(&self) -> f64 {
+        self.inner.scale
+    }
+    #[getter]
+    fn translation(&self) -> (f64, f64) {
+        (self.inner.translation[0], self.inner.translation[1])
+    }
+
+    /// Rows u (right), v (up), w (view direction) of the world-to-camera rotation, (3, 3).
+    fn rotation<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
+        let r = self.inner.rotation();
+        Array2::from_shape_fn((3, 3), |(i, j)| r[(i, j)]).into_pyarray(py)
+    }
+
+    /// The (2, 4) projection from homogeneous world points (LDU) to pixels.
+    fn pixel_matrix<'py>(&self, py: Python<'py>, width: u32, height: u32) -> Bound<'py, PyArray2<f64>> {
+        let m = self.inner.pixel_matrix(width, height);
+        Array2::from_shape_fn((2, 4), |(i, j)| m[(i, j)]).into_pyarray(py)
+    }
+
+    /// Project (N, 3) world points (LDU) to `(pixels (N, 2), depth (N,))`.
+    fn project<'py>(
+        &self,
+        py: Python<'py>,
+        points: PyReadonlyArray2<'py, f64>,
+        width: u32,
+        height: u32,
+    ) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyArray1<f64>>)> {
+        let p = points.as_array();
+        if p.ncols() != 3 {
+            return Err(PyValueError::new_err(format!("points must have shape (N, 3), got {:?}", p.shape())));
+        }
+        let mut px = Array2::zeros((p.nrows(), 2));
+        let mut d = Array1::zeros(p.nrows());
+        for (i, row) in p.rows().into_iter().enumerate() {
+            let (q, z) = self.inner.project([row[0], row[1], row[2]], width, height);
+            px[(i, 0)] = q[0];
+            px[(i, 1)] = q[1];
+            d[i] = z;
+        }
+        Ok((px.into_pyarray(py), d.into_pyarray(py)))
+    }
+
+    /// A copy with scale and translation making (N, 3) points fill `fill` of the frame.
+    fn fitted(&self, points: PyReadonlyArray2<'_, f64>, fill: f64) -> PyResult<Self> {
+        let p = points.as_array();
+        if p.ncols() != 3 {
+            return Err(PyValueError::new_err(format!("points must have shape (N, 3), got {:?}", p.shape())));
+        }
+        let pts: Vec<[f64; 3]> = p.rows().into_iter().map(|r| [r[0], r[1], r[2]]).collect();
+        Ok(PyCamera {
+            inner: self.inner.fitted(&pts, fill).py()?,
+        })
+    }
+
+    fn __repr__(&self) -> String {
+        let c = &self.inner;
+        format!(
+            "Camera(elevation={}, azimuth={}, roll={}, scale={}, translation=({}, {}))",
+            c.elevation, c.azimuth, c.roll, c.scale, c.translation[0], c.translation[1]
+        )
+    }
+}
+
+/// Mesh sources are cached per LDraw root so real part geometry is loaded once per process.
+fn source(ldraw_dir: Option<PathBuf>) -> Arc<MeshSource> {
+    static SOURCES: OnceLock<Mutex<HashMap<Option<PathBuf>, Arc<MeshSource>>>> = OnceLock::new();
+    let map = SOURCES.get_or_init(Mutex::default);
+    let mut map = map.lock().unwrap_or_else(|e| e.into_inner());
+    map.entry(ldraw_dir.clone())
+        .or_insert_with(|| {
+            Arc::new(match ldraw_dir {
+                None => MeshSource::builtin(),
+                Some(root) => MeshSource::ldraw(root),
+            })
+        })
+        .clone()
+}
+
+fn colour_table(ldraw_dir: Option<&PathBuf>) -> PyResult<Arc<ColourTable>> {
+    static TABLES: OnceLock<Mutex<HashMap<Option<PathBuf>, Arc<ColourTable>>>> = OnceLock::new();
+    let map = TABLES.get_or_init(Mutex::default);
+    let mut map = map.lock().unwrap_or_else(|e| e.into_inner());
+    if let Some(t) = map.get(&ldraw_dir.cloned()) {
+        return Ok(t.clone());
+    }
+    let t = Arc::new(match ldraw_dir {
+        None => ColourTable::builtin(),
+        Some(root) => ColourTable::load(root).py()?,
+    });
+    map.insert(ldraw_dir.cloned(), t.clone());
+    Ok(t)
+}
+
+/// RGB of an LDraw colour code (built-in table, or the LDConfig.ldr of `ldraw_dir`).
+#[pyfunction]
+#[pyo3(signature = (code, ldraw_dir=None))]
+fn colour_rgb(code: i32, ldraw_dir: Option<PathBuf>) -> PyResult<(u8, u8, u8)> {
+    let c = colour_table(ldraw_dir.as_ref())?.rgb(code);
+    Ok((c[0], c[1], c[2]))
+}
+
+/// Render an assembly. Returns a dict: `rgb` (H, W, 3) uint8, `depth` (H, W) float32 (inf on
+/// the background), `ids` (H, W) int32 instance ids (-1 background), `visible_fraction` and
+/// `visible_pixels` per instance id (supersampled counts).
+#[pyfunction]
+#[pyo3(signature = (assembly, camera, width, height, supersample=1, line_px=None, ldraw_dir=None))]
+#[allow(clippy::too_many_arguments)]
+fn render<'py>(
+    py: Python<'py>,
+    assembly: &PyAssembly,
+    camera: &PyCamera,
+    width: u32,
+    height: u32,
+    supersample: u32,
+    line_px: Option<f32>,
+    ldraw_dir: Option<PathBuf>,
+) -> PyResult<Bound<'py, PyDict>> {
+    let mut opts = RenderOptions::new(width, height);
+    opts.supersample = supersample;
+    if let Some(l) = line_px {
+        opts.line_px = l;
+    }
+    let colours = colour_table(ldraw_dir.as_ref())?;
+    let src = source(ldraw_dir);
+    let asm = &assembly.inner;
+    let cam = camera.inner;
+    let r = py
+        .detach(|| render_assembly(asm, &cam, &opts, &colours, &src))
+        .py()?;
+    let (h, w) = (r.height as usize, r.width as usize);
+    let frac = r.visible_fraction();
+    let d = PyDict::new(py);
+    d.set_item("rgb", Array3::from_shape_vec((h, w, 3), r.rgb).expect("h*w*3").into_pyarray(py))?;
+    d.set_item("depth", Array2::from_shape_vec((h, w), r.depth).expect("h*w").into_pyarray(py))?;
+    d.set_item("ids", Array2::from_shape_vec((h, w), r.ids).expect("h*w").into_pyarray(py))?;
+    d.set_item("visible_fraction", Array1::from(frac).into_pyarray(py))?;
+    d.set_item("visible_pixels", Array1::from(r.visible_samples).into_pyarray(py))?;
+    d.set_item("total_pixels", Array1::from(r.total_samples).into_pyarray(py))?;
+    Ok(d)
+}
+
+pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_class::<PyCamera>()?;
+    m.add_function(wrap_pyfunction!(colour_rgb, m)?)?;
+    m.add_function(wrap_pyfunction!(render, m)?)?;
+    Ok(())
+}
