@@ -5,17 +5,72 @@ use pyo3::create_exception;
 use pyo3::exceptions::PyException;
 use pyo3::prelude::*;
 
-create_exception!(_brickgeom, BrickGeomError, PyException, "Base class of every brickgeom error.");
-create_exception!(_brickgeom, UnknownPartError, BrickGeomError, "A part id that is not in the library.");
-create_exception!(_brickgeom, PlacementError, BrickGeomError, "A placement that is not allowed.");
-create_exception!(_brickgeom, CollisionError, PlacementError, "Voxels overlap a placed instance.");
-create_exception!(_brickgeom, BelowGroundError, PlacementError, "Voxels below the ground plane.");
-create_exception!(_brickgeom, NotConnectedError, PlacementError, "No stud, anti-stud or ground contact.");
-create_exception!(_brickgeom, OutOfRangeError, PlacementError, "Coordinates beyond the supported range.");
-create_exception!(_brickgeom, NoSuchInstanceError, BrickGeomError, "An instance id not in the assembly.");
-create_exception!(_brickgeom, LDrawError, BrickGeomError, "A malformed or inconsistent LDraw file.");
-create_exception!(_brickgeom, FileError, BrickGeomError, "A file that cannot be read or written.");
-create_exception!(_brickgeom, InvalidArgumentError, BrickGeomError, "An invalid argument value.");
+create_exception!(
+    _brickgeom,
+    BrickGeomError,
+    PyException,
+    "Base class of every brickgeom error."
+);
+create_exception!(
+    _brickgeom,
+    UnknownPartError,
+    BrickGeomError,
+    "A part id that is not in the library."
+);
+create_exception!(
+    _brickgeom,
+    PlacementError,
+    BrickGeomError,
+    "A placement that is not allowed."
+);
+create_exception!(
+    _brickgeom,
+    CollisionError,
+    PlacementError,
+    "Voxels overlap a placed instance."
+);
+create_exception!(
+    _brickgeom,
+    BelowGroundError,
+    PlacementError,
+    "Voxels below the ground plane."
+);
+create_exception!(
+    _brickgeom,
+    NotConnectedError,
+    PlacementError,
+    "No stud, anti-stud or ground contact."
+);
+create_exception!(
+    _brickgeom,
+    OutOfRangeError,
+    PlacementError,
+    "Coordinates beyond the supported range."
+);
+create_exception!(
+    _brickgeom,
+    NoSuchInstanceError,
+    BrickGeomError,
+    "An instance id not in the assembly."
+);
+create_exception!(
+    _brickgeom,
+    LDrawError,
+    BrickGeomError,
+    "A malformed or inconsistent LDraw file."
+);
+create_exception!(
+    _brickgeom,
+    FileError,
+    BrickGeomError,
+    "A file that cannot be read or written."
+);
+create_exception!(
+    _brickgeom,
+    InvalidArgumentError,
+    BrickGeomError,
+    "An invalid argument value."
+);
 
 /// Convert a core error to the matching Python exception. No catch-all arm: a new core variant
 /// must be mapped here before the crate compiles.
@@ -61,6 +116,9 @@ pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("NoSuchInstanceError", py.get_type::<NoSuchInstanceError>())?;
     m.add("LDrawError", py.get_type::<LDrawError>())?;
     m.add("FileError", py.get_type::<FileError>())?;
-    m.add("InvalidArgumentError", py.get_type::<InvalidArgumentError>())?;
+    m.add(
+        "InvalidArgumentError",
+        py.get_type::<InvalidArgumentError>(),
+    )?;
     Ok(())
 }

@@ -43,8 +43,16 @@ fn mesh_arrays<'py>(
     py: Python<'py>,
     mesh: &brickgeom::Mesh,
 ) -> (Bound<'py, PyArray2<f32>>, Bound<'py, PyArray2<u32>>) {
-    let v: Vec<f32> = mesh.vertices.iter().flat_map(|p| p.iter().copied()).collect();
-    let t: Vec<u32> = mesh.triangles.iter().flat_map(|p| p.iter().copied()).collect();
+    let v: Vec<f32> = mesh
+        .vertices
+        .iter()
+        .flat_map(|p| p.iter().copied())
+        .collect();
+    let t: Vec<u32> = mesh
+        .triangles
+        .iter()
+        .flat_map(|p| p.iter().copied())
+        .collect();
     (
         Array2::from_shape_vec((mesh.vertices.len(), 3), v)
             .expect("3 per vertex")
@@ -146,7 +154,9 @@ impl PyComponent {
             let coords: Vec<i32> = (1..4)
                 .map(|j| i32::try_from(row[j]))
                 .collect::<Result<_, _>>()
-                .map_err(|_| PyValueError::new_err(format!("pose {i} has a coordinate beyond int32")))?;
+                .map_err(|_| {
+                    PyValueError::new_err(format!("pose {i} has a coordinate beyond int32"))
+                })?;
             bricks.push(Brick {
                 part,
                 pose: pose(row[0], (coords[0], coords[1], coords[2]))?,
@@ -225,7 +235,9 @@ impl PyComponent {
 
     /// True when two poses place this component identically (pose equality modulo symmetry).
     fn same_placement(&self, yaw_a: i64, t_a: Int3, yaw_b: i64, t_b: Int3) -> PyResult<bool> {
-        Ok(self.inner.same_placement(&pose(yaw_a, t_a)?, &pose(yaw_b, t_b)?))
+        Ok(self
+            .inner
+            .same_placement(&pose(yaw_a, t_a)?, &pose(yaw_b, t_b)?))
     }
 
     fn __repr__(&self) -> String {
@@ -289,7 +301,10 @@ impl PyAssembly {
     /// LDraw colour code; returns its id.
     #[pyo3(signature = (component, yaw, t, colour=16))]
     fn add(&mut self, component: &PyComponent, yaw: i64, t: Int3, colour: i32) -> PyResult<u32> {
-        let id = self.inner.add(component.inner.clone(), pose(yaw, t)?).py()?;
+        let id = self
+            .inner
+            .add(component.inner.clone(), pose(yaw, t)?)
+            .py()?;
         self.inner.set_colour(id, colour).py()?;
         Ok(id)
     }
@@ -300,28 +315,55 @@ impl PyAssembly {
     }
 
     /// Place a component only if it is valid; returns `(id, attach_kind)`.
-    fn add_checked(&mut self, component: &PyComponent, yaw: i64, t: Int3) -> PyResult<(u32, &'static str)> {
-        let (id, kind) = self.inner.add_checked(component.inner.clone(), pose(yaw, t)?).py()?;
+    fn add_checked(
+        &mut self,
+        component: &PyComponent,
+        yaw: i64,
+        t: Int3,
+    ) -> PyResult<(u32, &'static str)> {
+        let (id, kind) = self
+            .inner
+            .add_checked(component.inner.clone(), pose(yaw, t)?)
+            .py()?;
         Ok((id, kind.name()))
     }
 
     /// Remove an instance by id; returns `(component, yaw, t)`.
     fn remove(&mut self, id: u32) -> PyResult<(PyComponent, u8, Int3)> {
         let inst = self.inner.remove(id).py()?;
-        Ok((PyComponent { inner: inst.component }, inst.pose.yaw, tup(inst.pose.t)))
+        Ok((
+            PyComponent {
+                inner: inst.component,
+            },
+            inst.pose.yaw,
+            tup(inst.pose.t),
+        ))
     }
 
     /// `[(id, component, yaw, t), ...]` of every placed instance.
     fn instances(&self) -> Vec<(u32, PyComponent, u8, Int3)> {
         self.inner
             .instances()
-            .map(|(id, i)| (id, PyComponent { inner: i.component.clone() }, i.pose.yaw, tup(i.pose.t)))
+            .map(|(id, i)| {
+                (
+                    id,
+                    PyComponent {
+                        inner: i.component.clone(),
+                    },
+                    i.pose.yaw,
+                    tup(i.pose.t),
+                )
+            })
             .collect()
     }
 
     /// The attach kind of a valid placement; raises a `PlacementError` subclass otherwise.
     fn check(&self, component: &PyComponent, yaw: i64, t: Int3) -> PyResult<&'static str> {
-        Ok(self.inner.check(&component.inner, &pose(yaw, t)?).py()?.name())
+        Ok(self
+            .inner
+            .check(&component.inner, &pose(yaw, t)?)
+            .py()?
+            .name())
     }
 
     /// Validity of many poses of one component: `poses` is (N, 4) int `[yaw, x, y, z]`; returns
@@ -362,9 +404,19 @@ impl PyAssembly {
     }
 
     /// Every way a placement connects (collision not checked).
-    fn attach_kinds(&self, component: &PyComponent, yaw: i64, t: Int3) -> PyResult<Vec<&'static str>> {
+    fn attach_kinds(
+        &self,
+        component: &PyComponent,
+        yaw: i64,
+        t: Int3,
+    ) -> PyResult<Vec<&'static str>> {
         let p = pose(yaw, t)?;
-        Ok(self.inner.attach_kinds(&component.inner, &p).iter().map(AttachKind::name).collect())
+        Ok(self
+            .inner
+            .attach_kinds(&component.inner, &p)
+            .iter()
+            .map(AttachKind::name)
+            .collect())
     }
 
     /// Id of the first instance the placement overlaps, or None.
@@ -392,7 +444,12 @@ impl PyAssembly {
     /// `(grid, origin)`: uint8 occupancy over [lo, hi] (default: the occupied bounds), indexed
     /// `[x - origin.x, y - origin.y, z - origin.z]`.
     #[pyo3(signature = (lo=None, hi=None))]
-    fn occupancy<'py>(&self, py: Python<'py>, lo: Option<Int3>, hi: Option<Int3>) -> PyResult<(Bound<'py, PyArray3<u8>>, Int3)> {
+    fn occupancy<'py>(
+        &self,
+        py: Python<'py>,
+        lo: Option<Int3>,
+        hi: Option<Int3>,
+    ) -> PyResult<(Bound<'py, PyArray3<u8>>, Int3)> {
         let (lo, hi) = self.window(lo, hi)?;
         let g = py.detach(|| self.inner.occupancy(lo, hi));
         Ok((g.into_pyarray(py), tup(lo)))
@@ -400,7 +457,12 @@ impl PyAssembly {
 
     /// `(grid, origin)`: int32 instance ids (-1 = empty), same indexing as `occupancy`.
     #[pyo3(signature = (lo=None, hi=None))]
-    fn brick_ids<'py>(&self, py: Python<'py>, lo: Option<Int3>, hi: Option<Int3>) -> PyResult<(Bound<'py, PyArray3<i32>>, Int3)> {
+    fn brick_ids<'py>(
+        &self,
+        py: Python<'py>,
+        lo: Option<Int3>,
+        hi: Option<Int3>,
+    ) -> PyResult<(Bound<'py, PyArray3<i32>>, Int3)> {
         let (lo, hi) = self.window(lo, hi)?;
         let g = py.detach(|| self.inner.id_grid(lo, hi));
         Ok((g.into_pyarray(py), tup(lo)))
@@ -428,7 +490,11 @@ impl PyAssembly {
 
     /// Validity of a step `[(component, yaw, t), ...]`: per component its attach kind, or the
     /// error message when it cannot be placed. The assembly is unchanged.
-    fn check_step<'py>(&self, py: Python<'py>, items: Vec<(Bound<'py, PyComponent>, i64, Int3)>) -> PyResult<Vec<(bool, String)>> {
+    fn check_step<'py>(
+        &self,
+        py: Python<'py>,
+        items: Vec<(Bound<'py, PyComponent>, i64, Int3)>,
+    ) -> PyResult<Vec<(bool, String)>> {
         let mut list = Vec::with_capacity(items.len());
         for (c, yaw, t) in items {
             list.push((c.get().inner.clone(), pose(yaw, t)?));
@@ -461,7 +527,9 @@ impl PyAssembly {
         let (blo, bhi) = self.inner.bounds().unwrap_or(([0; 3], [-1, -1, -1]));
         let lo = lo.map(lat).unwrap_or(blo);
         let hi = hi.map(lat).unwrap_or(bhi);
-        let cells: i64 = (0..3).map(|a| (hi[a] as i64 - lo[a] as i64 + 1).max(0)).product();
+        let cells: i64 = (0..3)
+            .map(|a| (hi[a] as i64 - lo[a] as i64 + 1).max(0))
+            .product();
         if cells > 512 * 512 * 512 {
             return Err(PyValueError::new_err(format!(
                 "window {lo:?}..{hi:?} has {cells} cells (limit 512^3)"

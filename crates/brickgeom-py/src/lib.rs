@@ -3,6 +3,9 @@
 //! Each function extracts its arguments, releases the GIL around work that can take longer than
 //! about a millisecond, calls the core and converts the result. No geometry lives here.
 
+// Return types of PyO3 functions (tuples of bound numpy arrays) are long by nature.
+#![allow(clippy::type_complexity)]
+
 mod errors;
 mod geom;
 mod ldraw;

@@ -28,9 +28,22 @@ pub struct PyCamera {
 impl PyCamera {
     #[new]
     #[pyo3(signature = (elevation=30.0, azimuth=225.0, roll=0.0, scale=0.01, translation=(0.0, 0.0)))]
-    fn new(elevation: f64, azimuth: f64, roll: f64, scale: f64, translation: (f64, f64)) -> PyResult<Self> {
+    fn new(
+        elevation: f64,
+        azimuth: f64,
+        roll: f64,
+        scale: f64,
+        translation: (f64, f64),
+    ) -> PyResult<Self> {
         Ok(PyCamera {
-            inner: Camera::new(elevation, azimuth, roll, scale, [translation.0, translation.1]).py()?,
+            inner: Camera::new(
+                elevation,
+                azimuth,
+                roll,
+                scale,
+                [translation.0, translation.1],
+            )
+            .py()?,
         })
     }
 
@@ -62,7 +75,12 @@ impl PyCamera {
     }
 
     /// The (2, 4) projection from homogeneous world points (LDU) to pixels.
-    fn pixel_matrix<'py>(&self, py: Python<'py>, width: u32, height: u32) -> Bound<'py, PyArray2<f64>> {
+    fn pixel_matrix<'py>(
+        &self,
+        py: Python<'py>,
+        width: u32,
+        height: u32,
+    ) -> Bound<'py, PyArray2<f64>> {
         let m = self.inner.pixel_matrix(width, height);
         Array2::from_shape_fn((2, 4), |(i, j)| m[(i, j)]).into_pyarray(py)
     }
@@ -77,7 +95,10 @@ impl PyCamera {
     ) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyArray1<f64>>)> {
         let p = points.as_array();
         if p.ncols() != 3 {
-            return Err(PyValueError::new_err(format!("points must have shape (N, 3), got {:?}", p.shape())));
+            return Err(PyValueError::new_err(format!(
+                "points must have shape (N, 3), got {:?}",
+                p.shape()
+            )));
         }
         let mut px = Array2::zeros((p.nrows(), 2));
         let mut d = Array1::zeros(p.nrows());
@@ -94,7 +115,10 @@ impl PyCamera {
     fn fitted(&self, points: PyReadonlyArray2<'_, f64>, fill: f64) -> PyResult<Self> {
         let p = points.as_array();
         if p.ncols() != 3 {
-            return Err(PyValueError::new_err(format!("points must have shape (N, 3), got {:?}", p.shape())));
+            return Err(PyValueError::new_err(format!(
+                "points must have shape (N, 3), got {:?}",
+                p.shape()
+            )));
         }
         let pts: Vec<[f64; 3]> = p.rows().into_iter().map(|r| [r[0], r[1], r[2]]).collect();
         Ok(PyCamera {
@@ -180,12 +204,33 @@ fn render<'py>(
     let (h, w) = (r.height as usize, r.width as usize);
     let frac = r.visible_fraction();
     let d = PyDict::new(py);
-    d.set_item("rgb", Array3::from_shape_vec((h, w, 3), r.rgb).expect("h*w*3").into_pyarray(py))?;
-    d.set_item("depth", Array2::from_shape_vec((h, w), r.depth).expect("h*w").into_pyarray(py))?;
-    d.set_item("ids", Array2::from_shape_vec((h, w), r.ids).expect("h*w").into_pyarray(py))?;
+    d.set_item(
+        "rgb",
+        Array3::from_shape_vec((h, w, 3), r.rgb)
+            .expect("h*w*3")
+            .into_pyarray(py),
+    )?;
+    d.set_item(
+        "depth",
+        Array2::from_shape_vec((h, w), r.depth)
+            .expect("h*w")
+            .into_pyarray(py),
+    )?;
+    d.set_item(
+        "ids",
+        Array2::from_shape_vec((h, w), r.ids)
+            .expect("h*w")
+            .into_pyarray(py),
+    )?;
     d.set_item("visible_fraction", Array1::from(frac).into_pyarray(py))?;
-    d.set_item("visible_pixels", Array1::from(r.visible_samples).into_pyarray(py))?;
-    d.set_item("total_pixels", Array1::from(r.total_samples).into_pyarray(py))?;
+    d.set_item(
+        "visible_pixels",
+        Array1::from(r.visible_samples).into_pyarray(py),
+    )?;
+    d.set_item(
+        "total_pixels",
+        Array1::from(r.total_samples).into_pyarray(py),
+    )?;
     Ok(d)
 }
 

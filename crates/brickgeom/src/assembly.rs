@@ -603,7 +603,11 @@ impl Assembly {
                 inst.component.bricks.iter().map(move |b| Brick {
                     part: b.part,
                     pose: inst.pose.compose(&b.pose),
-                    colour: if b.colour == MAIN_COLOUR { inst.colour } else { b.colour },
+                    colour: if b.colour == MAIN_COLOUR {
+                        inst.colour
+                    } else {
+                        b.colour
+                    },
                 })
             })
             .collect()

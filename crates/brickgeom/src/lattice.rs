@@ -142,7 +142,6 @@ pub fn check_range(p: Lattice) -> crate::Result<()> {
     }
 }
 
-
 /// Pack a lattice point (|coordinates| < 2^20) into one u64 key for hashing.
 #[inline]
 pub fn pack(p: Lattice) -> u64 {

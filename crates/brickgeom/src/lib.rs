@@ -5,6 +5,8 @@
 //! LDraw I/O boundary (`ldraw`).
 
 pub mod assembly;
+pub mod camera;
+pub mod colours;
 pub mod component;
 pub mod error;
 pub mod lattice;
@@ -12,6 +14,10 @@ pub mod ldraw;
 pub mod library;
 pub mod mesh;
 mod parts;
+pub mod raster;
+pub mod realmodel;
+pub mod scene;
+mod shapes;
 
 pub use assembly::{Assembly, AttachKind, GroundSearch, Instance, Placement, Snapshot};
 pub use component::Component;

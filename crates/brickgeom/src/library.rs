@@ -63,6 +63,10 @@ pub struct PartDef {
     pub keypoint: [f32; 3],
     /// Triangle mesh with studs in LDU, y up, part-local.
     pub mesh: Mesh,
+    /// Studs that are not vertical lattice connections (e.g. the side stud of 87087): they are
+    /// part of `mesh` but not of `studs`, and take no part in lattice connections. 0 for most
+    /// parts.
+    pub side_studs: u8,
 }
 
 /// The part table plus alias resolution.
@@ -112,9 +116,11 @@ impl Library {
 
     /// Look a part up by id or alias.
     pub fn get(&self, raw: &str) -> Result<&PartDef> {
-        let id = self.resolve(raw).ok_or_else(|| BrickGeomError::UnknownPart {
-            id: raw.to_string(),
-        })?;
+        let id = self
+            .resolve(raw)
+            .ok_or_else(|| BrickGeomError::UnknownPart {
+                id: raw.to_string(),
+            })?;
         Ok(&self.parts[self.index[id]])
     }
 }

@@ -195,12 +195,13 @@ pub fn render(items: &[RenderItem], camera: &Camera, opts: &RenderOptions) -> Re
                 u[0] * v[1] - u[1] * v[0],
             ];
             let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
-            if !(len > 1e-12) {
+            if len.is_nan() || len <= 1e-12 {
                 continue;
             }
             n = [n[0] / len, n[1] / len, n[2] / len];
             // Two-sided: real LDraw meshes are not consistently wound.
-            let towards_camera = -(n[0] * view[0] as f32 + n[1] * view[1] as f32 + n[2] * view[2] as f32);
+            let towards_camera =
+                -(n[0] * view[0] as f32 + n[1] * view[1] as f32 + n[2] * view[2] as f32);
             if towards_camera < 0.0 {
                 n = [-n[0], -n[1], -n[2]];
             }
@@ -391,9 +392,9 @@ fn dilate(src: &[bool], w: usize, h: usize, r: usize) -> Vec<bool> {
     // Separable: horizontal then vertical.
     let mut tmp = vec![false; w * h];
     tmp.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
-        for x in 0..w {
+        for (x, o) in row.iter_mut().enumerate() {
             let (a, b) = (x.saturating_sub(r), (x + r).min(w - 1));
-            row[x] = src[y * w + a..=y * w + b].iter().any(|&e| e);
+            *o = src[y * w + a..=y * w + b].iter().any(|&e| e);
         }
     });
     let mut out = vec![false; w * h];
@@ -409,14 +410,24 @@ fn dilate(src: &[bool], w: usize, h: usize, r: usize) -> Vec<bool> {
 /// Visit the samples of band rows [y0, y0 + rows) covered by a triangle, with interpolated depth.
 /// Samples are at (x + 0.5, y + 0.5); a top-left rule keeps shared edges from being drawn twice.
 #[inline]
-fn raster_triangle(t: &ScreenTri, y0: usize, rows: usize, w: usize, mut visit: impl FnMut(usize, f32)) {
+fn raster_triangle(
+    t: &ScreenTri,
+    y0: usize,
+    rows: usize,
+    w: usize,
+    mut visit: impl FnMut(usize, f32),
+) {
     let [a, b, c] = t.p;
     let area = (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0]);
     if area.abs() < 1e-9 || !area.is_finite() {
         return;
     }
     // Orient counter-clockwise in sample space.
-    let (b, c, area) = if area < 0.0 { (c, b, -area) } else { (b, c, area) };
+    let (b, c, area) = if area < 0.0 {
+        (c, b, -area)
+    } else {
+        (b, c, area)
+    };
     let xmin = a[0].min(b[0]).min(c[0]);
     let xmax = a[0].max(b[0]).max(c[0]);
     let ymin = a[1].min(b[1]).min(c[1]);
@@ -476,7 +487,9 @@ mod tests {
                 if z { hi[2] } else { lo[2] },
             ]
         };
-        let vertices = (0..8).map(|i| v(i & 1 != 0, i & 2 != 0, i & 4 != 0)).collect();
+        let vertices = (0..8)
+            .map(|i| v(i & 1 != 0, i & 2 != 0, i & 4 != 0))
+            .collect();
         let quads = [
             [0, 2, 3, 1],
             [4, 5, 7, 6],
@@ -499,7 +512,13 @@ mod tests {
     fn box_mask_area_is_analytic() {
         let (x, y, z) = (80.0f64, 24.0, 40.0);
         let mesh = cuboid([-40.0, 0.0, -20.0], [40.0, 24.0, 20.0]);
-        for (el, az) in [(30.0, 225.0), (20.0, 215.0), (40.0, 235.0), (0.0, 0.0), (89.0, 10.0)] {
+        for (el, az) in [
+            (30.0, 225.0),
+            (20.0, 215.0),
+            (40.0, 235.0),
+            (0.0, 0.0),
+            (89.0, 10.0),
+        ] {
             let cam = Camera::new(el, az, 0.0, 0.02, [0.0, 0.0]).unwrap();
             let opts = RenderOptions::new(512, 512);
             let r = render(&[RenderItem::new(&mesh, [200, 0, 0])], &cam, &opts).unwrap();
@@ -508,7 +527,10 @@ mod tests {
             let px_per_ldu = 0.02 * 256.0;
             let expected = area_ldu * px_per_ldu * px_per_ldu;
             let got = r.ids.iter().filter(|&&i| i == 0).count() as f64;
-            assert!((got - expected).abs() / expected < 0.01, "el {el} az {az}: {got} vs {expected}");
+            assert!(
+                (got - expected).abs() / expected < 0.01,
+                "el {el} az {az}: {got} vs {expected}"
+            );
             assert_eq!(r.visible_samples[0], got as u64);
             assert_eq!(r.total_samples[0], got as u64);
         }
@@ -527,7 +549,11 @@ mod tests {
         let r = render(&items, &cam, &RenderOptions::new(256, 256)).unwrap();
         let frac = r.visible_fraction();
         assert!((frac[1] - 1.0).abs() < 1e-6);
-        assert!((frac[0] - 2.0 / 3.0).abs() < 0.02, "back visible {}", frac[0]);
+        assert!(
+            (frac[0] - 2.0 / 3.0).abs() < 0.02,
+            "back visible {}",
+            frac[0]
+        );
         // ids and depth agree: wherever the front box is seen, depth is its face at z=20
         for (i, &id) in r.ids.iter().enumerate() {
             match id {
@@ -544,7 +570,12 @@ mod tests {
     fn supersampling_keeps_ids_at_pixel_centres() {
         let mesh = cuboid([-40.0, 0.0, -20.0], [40.0, 24.0, 20.0]);
         let cam = Camera::new(30.0, 225.0, 0.0, 0.015, [0.0, 0.0]).unwrap();
-        let a = render(&[RenderItem::new(&mesh, [9, 9, 9])], &cam, &RenderOptions::new(128, 128)).unwrap();
+        let a = render(
+            &[RenderItem::new(&mesh, [9, 9, 9])],
+            &cam,
+            &RenderOptions::new(128, 128),
+        )
+        .unwrap();
         let mut o = RenderOptions::new(128, 128);
         o.supersample = 3;
         let b = render(&[RenderItem::new(&mesh, [9, 9, 9])], &cam, &o).unwrap();

@@ -42,7 +42,12 @@ impl MeshSource {
     pub fn mesh(&self, id: &str) -> Result<Arc<Mesh>> {
         let def = part(id)?;
         // A poisoned lock only means another thread panicked mid-insert; the map is still valid.
-        if let Some(m) = self.cache.lock().unwrap_or_else(|e| e.into_inner()).get(def.id) {
+        if let Some(m) = self
+            .cache
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .get(def.id)
+        {
             return Ok(m.clone());
         }
         let mesh = match &self.ldraw_root {

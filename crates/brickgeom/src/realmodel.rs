@@ -1,0 +1,352 @@
+//! Real LDraw models on the lattice: each reference resolved against the library (part,
+//! submodel, or unknown), its pose converted, and each build step checked for physical validity.
+
+use std::collections::HashMap;
+use std::sync::Arc;
+
+use crate::assembly::{Assembly, AttachKind};
+use crate::component::{Brick, Component, MAIN_COLOUR};
+use crate::error::{BrickGeomError, Result};
+use crate::lattice::Pose;
+use crate::ldraw::{lattice_pose, normalise_name, LdrawFile};
+use crate::library::library;
+
+/// What a reference points at.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum ItemKind {
+    /// A library part (canonical id).
+    Part(&'static str),
+    /// A submodel of the same file (index into `LdrawFile::models`).
+    Submodel(usize),
+    /// A part outside the library.
+    Unknown,
+}
+
+/// One reference of a step, resolved.
+#[derive(Debug, Clone, PartialEq)]
+pub struct StepItem {
+    /// The name as referenced (normalised).
+    pub name: String,
+    pub kind: ItemKind,
+    pub colour: i32,
+    /// Lattice pose in the model's own frame (nearest lattice pose when flagged).
+    pub pose: Pose,
+    pub off_lattice: bool,
+    pub non_yaw: bool,
+    /// Line of the reference in the file.
+    pub line: usize,
+}
+
+/// A model's steps with resolved items.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LatticeModel {
+    pub name: String,
+    pub steps: Vec<Vec<StepItem>>,
+    /// Where the model's lattice sits in its LDraw frame (LDU, y down): real files often place a
+    /// whole model a few LDU off the origin's lattice (e.g. every y = 3 mod 8), which is not an
+    /// error. The most common offset of its part references is taken.
+    pub offset: [f64; 3],
+}
+
+/// The most common lattice residual (x mod 10, y mod 8, z mod 10) of part placements.
+fn lattice_offset(refs: &[&crate::ldraw::LdrawRef]) -> [f64; 3] {
+    let unit = [10.0, 8.0, 10.0];
+    let mut votes: HashMap<[i64; 3], usize> = HashMap::new();
+    for r in refs {
+        if !r.position.iter().all(|v| v.is_finite()) {
+            continue;
+        }
+        // residuals in hundredths of an LDU, so float noise does not split the vote
+        let key = [0, 1, 2].map(|a| {
+            ((r.position[a].rem_euclid(unit[a]) * 100.0).round() as i64) % (unit[a] as i64 * 100)
+        });
+        *votes.entry(key).or_default() += 1;
+    }
+    votes
+        .into_iter()
+        .max_by_key(|&(k, n)| (n, std::cmp::Reverse(k)))
+        .map_or([0.0; 3], |(k, _)| k.map(|v| v as f64 / 100.0))
+}
+
+/// Why an item cannot be placed as a component.
+fn blocker(item: &StepItem, known: &[bool]) -> Option<String> {
+    if item.off_lattice {
+        return Some(format!(
+            "{} is off the lattice (line {})",
+            item.name, item.line
+        ));
+    }
+    if item.non_yaw {
+        return Some(format!(
+            "{} is not a pure yaw rotation (line {})",
+            item.name, item.line
+        ));
+    }
+    match item.kind {
+        ItemKind::Part(_) => None,
+        ItemKind::Submodel(m) if known[m] => None,
+        ItemKind::Submodel(_) => Some(format!(
+            "submodel {} has parts that are not placeable",
+            item.name
+        )),
+        ItemKind::Unknown => Some(format!("{} is not a library part", item.name)),
+    }
+}
+
+/// Resolve every model of a file.
+pub fn lattice_models(file: &LdrawFile) -> Vec<LatticeModel> {
+    let index: HashMap<String, usize> = file
+        .models
+        .iter()
+        .enumerate()
+        .map(|(i, m)| (normalise_name(&m.name), i))
+        .collect();
+    let lib = library();
+    let offsets: Vec<[f64; 3]> = file
+        .models
+        .iter()
+        .map(|m| {
+            let parts: Vec<&crate::ldraw::LdrawRef> = m
+                .steps
+                .iter()
+                .flatten()
+                .filter(|r| !r.is_submodel)
+                .collect();
+            lattice_offset(&parts)
+        })
+        .collect();
+    file.models
+        .iter()
+        .enumerate()
+        .map(|(mi, m)| LatticeModel {
+            name: m.name.clone(),
+            offset: offsets[mi],
+            steps: m
+                .steps
+                .iter()
+                .map(|step| {
+                    step.iter()
+                        .map(|r| {
+                            let kind = match (r.is_submodel, index.get(&normalise_name(&r.name))) {
+                                (true, Some(&i)) => ItemKind::Submodel(i),
+                                _ => lib
+                                    .resolve(&r.name)
+                                    .map_or(ItemKind::Unknown, ItemKind::Part),
+                            };
+                            // Position relative to this model's lattice; a submodel's own offset
+                            // moves with it: P = M (L_sub + off_sub) + pos.
+                            let inner = match kind {
+                                ItemKind::Submodel(i) => offsets[i],
+                                _ => [0.0; 3],
+                            };
+                            let mut pos = [0.0; 3];
+                            for (a, p) in pos.iter_mut().enumerate() {
+                                let moved: f64 = (0..3).map(|b| r.matrix[a][b] * inner[b]).sum();
+                                *p = r.position[a] + moved - offsets[mi][a];
+                            }
+                            let lp = lattice_pose(pos, r.matrix);
+                            StepItem {
+                                name: r.name.clone(),
+                                kind,
+                                colour: r.colour,
+                                pose: lp.pose,
+                                off_lattice: lp.off_lattice,
+                                non_yaw: lp.non_yaw,
+                                line: r.line,
+                            }
+                        })
+                        .collect()
+                })
+                .collect(),
+        })
+        .collect()
+}
+
+/// A file resolved on the lattice, with the components of its placeable submodels.
+pub struct LatticeFile {
+    pub models: Vec<LatticeModel>,
+    /// Per model: every item (recursively) is a library part on the lattice.
+    pub placeable: Vec<bool>,
+    /// Per placeable model: its bricks in its own frame.
+    bricks: Vec<Option<Vec<Brick>>>,
+}
+
+impl LatticeFile {
+    /// Resolve a parsed file. Submodel cycles were rejected by the parser; a reference to a
+    /// model that is still being resolved is treated as not placeable.
+    pub fn new(file: &LdrawFile) -> LatticeFile {
+        let models = lattice_models(file);
+        let n = models.len();
+        let mut placeable = vec![false; n];
+        let mut bricks: Vec<Option<Vec<Brick>>> = vec![None; n];
+        // Resolve in dependency order: repeat until no model changes (depth <= n).
+        for _ in 0..=n {
+            let mut changed = false;
+            for m in 0..n {
+                if bricks[m].is_some() {
+                    continue;
+                }
+                let items = models[m].steps.iter().flatten();
+                if items.clone().any(|it| blocker(it, &placeable).is_some()) {
+                    continue;
+                }
+                let mut out = Vec::new();
+                for it in items {
+                    match it.kind {
+                        ItemKind::Part(id) => out.push(Brick {
+                            part: id,
+                            pose: it.pose,
+                            colour: it.colour,
+                        }),
+                        ItemKind::Submodel(s) => {
+                            for b in bricks[s].as_ref().expect("placeable submodel has bricks") {
+                                out.push(Brick {
+                                    part: b.part,
+                                    pose: it.pose.compose(&b.pose),
+                                    colour: if b.colour == MAIN_COLOUR {
+                                        it.colour
+                                    } else {
+                                        b.colour
+                                    },
+                                });
+                            }
+                        }
+                        ItemKind::Unknown => unreachable!("blocker() rejects unknown items"),
+                    }
+                }
+                placeable[m] = true;
+                bricks[m] = Some(out);
+                changed = true;
+            }
+            if !changed {
+                break;
+            }
+        }
+        LatticeFile {
+            models,
+            placeable,
+            bricks,
+        }
+    }
+
+    /// The bricks of a placeable model in its own frame.
+    pub fn bricks(&self, model: usize) -> Option<&[Brick]> {
+        self.bricks.get(model)?.as_deref()
+    }
+
+    /// Why an item cannot become a component, if it cannot.
+    pub fn blocker(&self, item: &StepItem) -> Option<String> {
+        blocker(item, &self.placeable)
+    }
+
+    /// The component an item places (a part, or a submodel as one component).
+    pub fn component(&self, item: &StepItem) -> Result<Component> {
+        if let Some(why) = self.blocker(item) {
+            return Err(BrickGeomError::InvalidArgument(why));
+        }
+        match item.kind {
+            ItemKind::Part(id) => Component::primitive(id),
+            ItemKind::Submodel(m) => Component::from_bricks(
+                self.models[m].name.clone(),
+                self.bricks(m).expect("placeable").to_vec(),
+            ),
+            ItemKind::Unknown => unreachable!("blocker() rejects unknown items"),
+        }
+    }
+}
+
+/// Validity of one step.
+#[derive(Debug, Clone, PartialEq)]
+pub struct StepCheck {
+    /// 1-based step number within its model.
+    pub step: usize,
+    pub items: usize,
+    /// Items that are placeable components.
+    pub placeable: usize,
+    /// Per item, when every item of the step is placeable: attach kind or why it fails.
+    pub results: Option<Vec<Result<AttachKind>>>,
+    /// Every item of this and all earlier steps is placeable, so "not connected" is a real
+    /// finding (otherwise the part may rest on something outside the library).
+    pub complete_base: bool,
+}
+
+/// A placeable item: its component, pose and colour.
+type Placed = (Arc<Component>, Pose, i32);
+
+/// Check the steps of one model, built in its own frame with its lowest voxel on the ground.
+/// Items that cannot be placed are left out of the assembly (so a later step resting on them
+/// may be reported not connected). Components of a step may hang on each other in any order.
+pub fn check_model_steps(lf: &LatticeFile, model: usize) -> Result<Vec<StepCheck>> {
+    let m = lf
+        .models
+        .get(model)
+        .ok_or_else(|| BrickGeomError::InvalidArgument(format!("no model {model}")))?;
+    // Components and poses of the placeable items; lowest voxel over the whole model.
+    let mut cache: HashMap<String, Arc<Component>> = HashMap::new();
+    let mut placed: Vec<Vec<Option<Placed>>> = Vec::new();
+    let mut min_y = i32::MAX;
+    for step in &m.steps {
+        let mut row = Vec::new();
+        for it in step {
+            if lf.blocker(it).is_some() {
+                row.push(None);
+                continue;
+            }
+            let key = format!("{:?}", it.kind);
+            let comp = match cache.get(&key) {
+                Some(c) => c.clone(),
+                None => {
+                    let c = Arc::new(lf.component(it)?);
+                    cache.insert(key, c.clone());
+                    c
+                }
+            };
+            let (v, _, _) = comp.placed(&it.pose);
+            if let Some(y) = v.iter().map(|c| c[1]).min() {
+                min_y = min_y.min(y);
+            }
+            row.push(Some((comp, it.pose, it.colour)));
+        }
+        placed.push(row);
+    }
+    let shift = if min_y == i32::MAX { 0 } else { -min_y };
+    let mut asm = Assembly::new();
+    let mut out = Vec::new();
+    let mut complete = true;
+    for (s, row) in placed.into_iter().enumerate() {
+        complete &= row.iter().all(|x| x.is_some());
+        let items: Vec<Placed> = row
+            .iter()
+            .flatten()
+            .map(|(c, p, col)| {
+                (
+                    c.clone(),
+                    Pose::new(p.yaw, [p.t[0], p.t[1] + shift, p.t[2]]),
+                    *col,
+                )
+            })
+            .collect();
+        let all = items.len() == row.len();
+        let results = if all {
+            let list: Vec<(Arc<Component>, Pose)> =
+                items.iter().map(|(c, p, _)| (c.clone(), *p)).collect();
+            Some(asm.check_step(&list))
+        } else {
+            None
+        };
+        for (c, p, col) in items {
+            // Overlapping real parts (e.g. flexible or mis-modelled ones) are left out.
+            if let Ok(id) = asm.add(c, p) {
+                asm.set_colour(id, col)?;
+            }
+        }
+        out.push(StepCheck {
+            step: s + 1,
+            items: row.len(),
+            placeable: row.iter().flatten().count(),
+            results,
+            complete_base: complete,
+        });
+    }
+    Ok(out)
+}
