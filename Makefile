@@ -18,7 +18,7 @@ $(PY):
 
 # Python dependencies are re-installed only when pyproject.toml changes.
 $(VENV)/.deps: pyproject.toml | $(PY)
-	$(PY) -m pip install --quiet "maturin>=1.7,<2" "numpy>=1.24" "tqdm>=4.60" \
+	$(PY) -m pip install --quiet "maturin>=1.7,<2" "numpy>=1.24" "Pillow>=9" "tqdm>=4.60" \
 		"pytest>=8" "hypothesis>=6" "ruff>=0.6" "mypy>=1.10"
 	touch $@
 

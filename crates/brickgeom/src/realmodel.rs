@@ -330,7 +330,18 @@ pub fn check_model_steps(lf: &LatticeFile, model: usize) -> Result<Vec<StepCheck
         let results = if all {
             let list: Vec<(Arc<Component>, Pose)> =
                 items.iter().map(|(c, p, _)| (c.clone(), *p)).collect();
-            Some(asm.check_step(&list))
+            if asm.is_empty() && !list.is_empty() {
+                // The first part of a model is its base: the builder holds it (or it stands on
+                // the table) wherever it sits in the model's frame. The rest of the step must
+                // connect to it.
+                let mut base = Assembly::new();
+                let first = base.add(list[0].0.clone(), list[0].1);
+                let mut res = vec![first.map(|_| AttachKind::Ground)];
+                res.extend(base.check_step(&list[1..]));
+                Some(res)
+            } else {
+                Some(asm.check_step(&list))
+            }
         } else {
             None
         };
