@@ -6,10 +6,9 @@ from __future__ import annotations
 import threading
 import time
 
+import mepnet
 import numpy as np
 import pytest
-
-import mepnet
 from mepnet import Assembly, Component
 
 

@@ -6,9 +6,8 @@ import subprocess
 import sys
 from pathlib import Path
 
-import pytest
-
 import mepnet
+import pytest
 from mepnet import ldraw
 
 REAL = Path(__file__).resolve().parents[2] / "shared" / "real" / "models"
@@ -63,7 +62,12 @@ def test_write_read_round_trip(tmp_path: Path):
 def test_pose_conversion_inverts():
     for yaw in range(4):
         pos, mat = ldraw.ldraw_placement(yaw, (3, 5, -7))
-        assert ldraw.lattice_pose(tuple(pos), tuple(tuple(r) for r in mat)) == (yaw, (3, 5, -7), False, False)
+        assert ldraw.lattice_pose(tuple(pos), tuple(tuple(r) for r in mat)) == (
+            yaw,
+            (3, 5, -7),
+            False,
+            False,
+        )
     assert ldraw.lattice_pose((5.0, 0.0, 0.0), ldraw.IDENTITY)[2] is True  # half a half-stud off
 
 
@@ -108,7 +112,9 @@ def test_inspect_reports_validity_of_the_bundled_example():
 
 def test_inspect_finds_an_invalid_step():
     # the second brick floats one plate above the first: not connected
-    text = b"1 4 0 -24 0 1 0 0 0 1 0 0 0 1 3001.dat\n0 STEP\n1 4 0 -56 0 1 0 0 0 1 0 0 0 1 3001.dat\n"
+    text = (
+        b"1 4 0 -24 0 1 0 0 0 1 0 0 0 1 3001.dat\n0 STEP\n1 4 0 -56 0 1 0 0 0 1 0 0 0 1 3001.dat\n"
+    )
     info = ldraw.inspect(ldraw.parse(text, "float.ldr"))
     assert info["steps_checked"] == 2 and info["steps_valid"] == 1 and info["steps_invalid"] == 1
 

@@ -60,11 +60,13 @@ def print_plan(file: ldraw.LDrawFile, checks: list[dict[str, Any]]) -> None:
         model = checks[m]
         kind = "main model" if m == 0 else "submodule"
         print(f"\n{model['name']} ({kind}, {len(model['steps'])} steps)")
-        print(f"  {'step':>4}  {'component':<28} {'yaw':>3}  {'lattice (x, y, z)':<18} "
-              f"{'LDU (x, y, z)':<22} attach")
-        for step, items in zip(model["steps"], model["items"]):
+        print(
+            f"  {'step':>4}  {'component':<28} {'yaw':>3}  {'lattice (x, y, z)':<18} "
+            f"{'LDU (x, y, z)':<22} attach"
+        )
+        for step, items in zip(model["steps"], model["items"], strict=True):
             results = step["results"] or [(False, "-")] * len(items)
-            for k, (it, (ok, kind_or_err)) in enumerate(zip(items, results)):
+            for k, (it, (ok, kind_or_err)) in enumerate(zip(items, results, strict=True)):
                 if it["kind"] == "part":
                     name = f"{it['part']} {_bg.part_info(it['part'])['name']}"
                 elif it["kind"] == "submodel":
@@ -94,7 +96,9 @@ def render_steps(file: ldraw.LDrawFile, checks: list[dict[str, Any]], out: Path,
         steps = [
             [
                 (
-                    _bg.Component.primitive(it["part"]) if it["kind"] == "part" else comps[it["submodel"]],
+                    _bg.Component.primitive(it["part"])
+                    if it["kind"] == "part"
+                    else comps[it["submodel"]],
                     it["yaw"],
                     (it["t"][0], it["t"][1] + lift, it["t"][2]),
                     it["colour"],
@@ -115,8 +119,12 @@ def render_steps(file: ldraw.LDrawFile, checks: list[dict[str, Any]], out: Path,
         lo, hi = final.bounds()
         drop = lo[1]
         corners = np.array(
-            [[x * 10.0, (y - drop) * 8.0, z * 10.0] for x in (lo[0], hi[0] + 1)
-             for y in (lo[1], hi[1] + 1) for z in (lo[2], hi[2] + 1)]
+            [
+                [x * 10.0, (y - drop) * 8.0, z * 10.0]
+                for x in (lo[0], hi[0] + 1)
+                for y in (lo[1], hi[1] + 1)
+                for z in (lo[2], hi[2] + 1)
+            ]
         )
         camera = _bg.Camera(30.0, 225.0).fitted(corners, 0.85)
         asm = _bg.Assembly()
@@ -161,7 +169,9 @@ def submodule_component(
 def main(argv: list[str] | None = None) -> int:
     """Entry point; returns the exit status (2 on bad input, with one line on stderr)."""
     ap = argparse.ArgumentParser(prog="python -m mepnet.infer", description=__doc__.splitlines()[0])
-    ap.add_argument("model", nargs="?", help="LDraw model (.ldr/.mpd); default: the bundled example")
+    ap.add_argument(
+        "model", nargs="?", help="LDraw model (.ldr/.mpd); default: the bundled example"
+    )
     ap.add_argument("--out", type=Path, help="folder for rendered step images")
     ap.add_argument("--size", type=int, default=256, help="image size in pixels (default 256)")
     args = ap.parse_args(argv)
@@ -194,4 +204,3 @@ def main(argv: list[str] | None = None) -> int:
 
 if __name__ == "__main__":
     raise SystemExit(main())
-

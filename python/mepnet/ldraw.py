@@ -180,10 +180,18 @@ def inspect(file: LDrawFile) -> dict[str, Any]:
     counts = collections.Counter(p["name"] for p in flat)
     known = {n: _bg.resolve_part(n) for n in counts}
     off = sum(
-        1 for m in checks for step in m["items"] for it in step if it["kind"] != "submodel" and it["off_lattice"]
+        1
+        for m in checks
+        for step in m["items"]
+        for it in step
+        if it["kind"] != "submodel" and it["off_lattice"]
     )
     non_yaw = sum(
-        1 for m in checks for step in m["items"] for it in step if it["kind"] != "submodel" and it["non_yaw"]
+        1
+        for m in checks
+        for step in m["items"]
+        for it in step
+        if it["kind"] != "submodel" and it["non_yaw"]
     )
     steps = [s for m in checks for s in m["steps"]]
     checked = [s for s in steps if s["results"] is not None]
@@ -208,9 +216,7 @@ def inspect(file: LDrawFile) -> dict[str, Any]:
         "steps_valid": len(valid),
         "steps_unverified": len(unverified),
         "steps_invalid": len(checked) - len(valid) - len(unverified),
-        "step_checks": [
-            {"model": m["name"], **s} for m in checks for s in m["steps"]
-        ],
+        "step_checks": [{"model": m["name"], **s} for m in checks for s in m["steps"]],
     }
 
 
@@ -300,13 +306,17 @@ def _cmd_info(args: argparse.Namespace) -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     """The ``python -m mepnet.ldraw`` argument parser."""
-    ap = argparse.ArgumentParser(prog="python -m mepnet.ldraw", description="LDraw inspection and conversion.")
+    ap = argparse.ArgumentParser(
+        prog="python -m mepnet.ldraw", description="LDraw inspection and conversion."
+    )
     sub = ap.add_subparsers(dest="command", required=True)
     info = sub.add_parser("info", help="steps, submodels, coverage and validity of LDraw files")
     info.add_argument("files", nargs="+", metavar="FILE", help=".ldr or .mpd file(s)")
     info.add_argument("--steps", action="store_true", help="print the validity of every step")
     info.add_argument("--json", metavar="OUT", help="also write the full report as JSON")
-    info.add_argument("--markdown", action="store_true", help="print one markdown table row per file")
+    info.add_argument(
+        "--markdown", action="store_true", help="print one markdown table row per file"
+    )
     info.set_defaults(run=_cmd_info)
     return ap
 

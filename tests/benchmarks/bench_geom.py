@@ -18,9 +18,8 @@ import tempfile
 import time
 from dataclasses import dataclass
 
-import numpy as np
-
 import mepnet
+import numpy as np
 
 # ---------------------------------------------------------------------------------------------
 # Building test assemblies
@@ -58,7 +57,9 @@ def rot_points(p: np.ndarray, yaw: int) -> np.ndarray:
 
 def rot_cells(c: np.ndarray, yaw: int) -> np.ndarray:
     i, j, k = c[:, 0], c[:, 1], c[:, 2]
-    return np.stack([(i, j, k), (k, j, -i - 1), (-i - 1, j, -k - 1), (-k - 1, j, i)][yaw % 4], axis=1)
+    return np.stack(
+        [(i, j, k), (k, j, -i - 1), (-i - 1, j, -k - 1), (-k - 1, j, i)][yaw % 4], axis=1
+    )
 
 
 def key(p: np.ndarray) -> np.ndarray:
@@ -196,23 +197,24 @@ def run(sizes: list[int], repeat: int) -> list[dict]:
         theirs = ref.check_many(comp, 0, poses[:, 1:])
         assert np.array_equal(ours, theirs), f"check mismatch at {n} bricks"
 
-        def rust_cands():
+        def rust_cands(asm=asm):
             for yaw in range(4):
                 asm.candidates(comp, yaw)
 
-        def numpy_cands():
+        def numpy_cands(ref=ref):
             for yaw in range(4):
                 ref.candidates(comp, yaw)
+
+        def rust_checks(asm=asm, poses=poses):
+            asm.check_many(comp, poses)
+
+        def numpy_checks(ref=ref, poses=poses):
+            ref.check_many(comp, 0, poses[:, 1:])
 
         n_cands = sum(len(asm.candidates(comp, yaw)[0]) for yaw in range(4))
         for op, fr, fn, count in [
             ("candidates (2x4 brick, 4 yaws)", rust_cands, numpy_cands, n_cands),
-            (
-                f"check {k} poses (collision + connection)",
-                lambda: asm.check_many(comp, poses),
-                lambda: ref.check_many(comp, 0, poses[:, 1:]),
-                k,
-            ),
+            (f"check {k} poses (collision + connection)", rust_checks, numpy_checks, k),
         ]:
             tr, tn = best_of(fr, repeat), best_of(fn, repeat)
             rows.append(
