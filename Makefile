@@ -34,7 +34,6 @@ test: install
 	$(PY) -m pytest -q
 
 bench: install
-	cargo build --release --workspace
 	$(PY) tests/benchmarks/bench_geom.py --out docs/benchmarks.md
 
 lint: install

@@ -268,7 +268,7 @@ def write_markdown(rows: list[dict], path: str) -> None:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default="docs/benchmarks.md", help="markdown file to update")
-    ap.add_argument("--sizes", default="10,100,1000", help="assembly sizes (bricks)")
+    ap.add_argument("--sizes", default="10,100,500,1000", help="assembly sizes (bricks)")
     ap.add_argument("--repeat", type=int, default=5)
     args = ap.parse_args(argv)
     rows = run([int(s) for s in args.sizes.split(",")], args.repeat)

@@ -76,6 +76,9 @@ struct Grid {
     origin: Lattice,
     dims: [usize; 3],
     cells: Vec<u32>,
+    /// One bit per cell (filled or not): collision tests touch this 32x smaller array, which
+    /// stays in cache on large assemblies; `cells` is read only to name the occupant.
+    bits: Vec<u64>,
 }
 
 /// Extra cells added on every side when the grid grows, so growth is rare.
@@ -100,6 +103,22 @@ impl Grid {
     #[inline]
     fn get(&self, c: Lattice) -> u32 {
         self.index(c).map_or(0, |i| self.cells[i])
+    }
+
+    #[inline]
+    fn filled(&self, c: Lattice) -> bool {
+        self.index(c)
+            .is_some_and(|i| self.bits[i >> 6] & (1u64 << (i & 63)) != 0)
+    }
+
+    #[inline]
+    fn set(&mut self, i: usize, value: u32) {
+        self.cells[i] = value;
+        if value == 0 {
+            self.bits[i >> 6] &= !(1u64 << (i & 63));
+        } else {
+            self.bits[i >> 6] |= 1u64 << (i & 63);
+        }
     }
 
     /// Grow (reallocating) so that the box [lo, hi] (inclusive cells) is covered.
@@ -135,6 +154,7 @@ impl Grid {
             origin: new_lo,
             dims,
             cells: vec![0; dims[0] * dims[1] * dims[2]],
+            bits: vec![0; (dims[0] * dims[1] * dims[2]).div_ceil(64)],
         };
         for x in 0..self.dims[0] {
             for y in 0..self.dims[1] {
@@ -145,8 +165,9 @@ impl Grid {
                     self.origin[2],
                 ];
                 let dst = grid.index(c).expect("new grid covers the old one");
-                grid.cells[dst..dst + self.dims[2]]
-                    .copy_from_slice(&self.cells[src..src + self.dims[2]]);
+                for k in 0..self.dims[2] {
+                    grid.set(dst + k, self.cells[src + k]);
+                }
             }
         }
         *self = grid;
@@ -303,7 +324,7 @@ impl Assembly {
 
     /// True if a stud at `p` has nothing on it.
     pub fn stud_is_free(&self, p: Lattice) -> bool {
-        cells_around(p, p[1]).iter().all(|&c| self.grid.get(c) == 0)
+        cells_around(p, p[1]).iter().all(|&c| !self.grid.filled(c))
     }
 
     /// True if an anti-stud at `p` has nothing under it and is above the ground.
@@ -311,7 +332,7 @@ impl Assembly {
         p[1] > 0
             && cells_around(p, p[1] - 1)
                 .iter()
-                .all(|&c| self.grid.get(c) == 0)
+                .all(|&c| !self.grid.filled(c))
     }
 
     /// Every way the placement connects (empty: not connected). Does not check collision.
@@ -369,7 +390,12 @@ impl Assembly {
                 y: prep.lo[1] + t[1],
             });
         }
-        if let Some(instance) = prep.voxels.iter().find_map(|&v| self.occupant(add(v, t))) {
+        if prep.voxels.iter().any(|&v| self.grid.filled(add(v, t))) {
+            let instance = prep
+                .voxels
+                .iter()
+                .find_map(|&v| self.occupant(add(v, t)))
+                .expect("a filled cell has an occupant");
             return Err(BrickGeomError::Collision { instance });
         }
         // Preference order: on studs, from below, ground.
@@ -448,7 +474,7 @@ impl Assembly {
                 .grid
                 .index(v)
                 .expect("grid was grown to cover the voxels");
-            self.grid.cells[i] = id + 1;
+            self.grid.set(i, id + 1);
         }
         for &s in &studs {
             self.stud_index
@@ -506,7 +532,7 @@ impl Assembly {
         self.free_cache = OnceLock::new();
         for &v in &inst.voxels {
             if let Some(i) = self.grid.index(v) {
-                self.grid.cells[i] = 0;
+                self.grid.set(i, 0);
             }
         }
         for (index, points) in [
