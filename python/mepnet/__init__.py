@@ -7,6 +7,7 @@ Users import from here (or the submodules ``mepnet.geom``, ``mepnet.ldraw``), ne
 from mepnet.geom import (
     Assembly,
     BelowGroundError,
+    Camera,
     BrickGeomError,
     CollisionError,
     Component,
@@ -21,6 +22,7 @@ from mepnet.geom import (
     part_ids,
     part_info,
     part_mesh,
+    render,
     resolve_part,
 )
 
@@ -29,6 +31,7 @@ __version__ = "0.1.0"
 __all__ = [
     "Assembly",
     "BelowGroundError",
+    "Camera",
     "BrickGeomError",
     "CollisionError",
     "Component",
@@ -43,5 +46,6 @@ __all__ = [
     "part_ids",
     "part_info",
     "part_mesh",
+    "render",
     "resolve_part",
 ]

@@ -8,6 +8,7 @@ Meshes are in LDU, y up.
 from mepnet._brickgeom import (
     Assembly,
     BelowGroundError,
+    Camera,
     BrickGeomError,
     CollisionError,
     Component,
@@ -22,6 +23,7 @@ from mepnet._brickgeom import (
     part_ids,
     part_info,
     part_mesh,
+    render,
     resolve_part,
 )
 
@@ -32,6 +34,7 @@ __all__ = [
     "ATTACH_KINDS",
     "Assembly",
     "BelowGroundError",
+    "Camera",
     "BrickGeomError",
     "CollisionError",
     "Component",
@@ -46,5 +49,6 @@ __all__ = [
     "part_ids",
     "part_info",
     "part_mesh",
+    "render",
     "resolve_part",
 ]

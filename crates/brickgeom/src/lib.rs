@@ -18,6 +18,7 @@ pub mod raster;
 pub mod realmodel;
 pub mod scene;
 mod shapes;
+pub mod synth;
 
 pub use assembly::{Assembly, AttachKind, GroundSearch, Instance, Placement, Snapshot};
 pub use component::Component;

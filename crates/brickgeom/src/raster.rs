@@ -73,7 +73,8 @@ impl RenderOptions {
         }
     }
 
-    fn validate(&self) -> Result<()> {
+    /// Check the sizes and settings.
+    pub fn validate(&self) -> Result<()> {
         if self.width == 0 || self.height == 0 || self.width > 8192 || self.height > 8192 {
             return Err(BrickGeomError::InvalidArgument(format!(
                 "image size must be 1..=8192 pixels per side, got {}x{}",
