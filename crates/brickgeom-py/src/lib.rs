@@ -10,6 +10,7 @@ mod errors;
 mod geom;
 mod ldraw;
 mod render;
+mod synth;
 
 use pyo3::prelude::*;
 
@@ -19,6 +20,7 @@ fn _brickgeom(m: &Bound<'_, PyModule>) -> PyResult<()> {
     geom::register(m)?;
     ldraw::register(m)?;
     render::register(m)?;
+    synth::register(m)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     Ok(())
 }

@@ -1,0 +1,211 @@
+//! The synthetic manual generator, as plain dicts and numpy images for `mepnet.synth`.
+
+use std::path::PathBuf;
+
+use brickgeom::camera::Camera;
+use brickgeom::colours::ColourTable;
+use brickgeom::scene::MeshSource;
+use brickgeom::synth::{generate, render_build, Build, ComponentRef, StepImage, SynthConfig};
+use brickgeom::{library, BrickGeomError};
+use ndarray::{Array2, Array3};
+use numpy::IntoPyArray;
+use pyo3::exceptions::PyValueError;
+use pyo3::prelude::*;
+use pyo3::types::{PyDict, PyList};
+
+use crate::errors::IntoPyResult;
+
+/// Camera parameters as a dict (the `manual.json` form).
+pub fn camera_dict<'py>(py: Python<'py>, c: &Camera) -> PyResult<Bound<'py, PyDict>> {
+    let d = PyDict::new(py);
+    d.set_item("elevation", c.elevation)?;
+    d.set_item("azimuth", c.azimuth)?;
+    d.set_item("roll", c.roll)?;
+    d.set_item("scale", c.scale)?;
+    d.set_item("translation", c.translation)?;
+    Ok(d)
+}
+
+fn config_from(d: Option<&Bound<'_, PyDict>>) -> PyResult<SynthConfig> {
+    let mut c = SynthConfig::default();
+    let Some(d) = d else {
+        return Ok(c);
+    };
+    for (k, v) in d.iter() {
+        let key: String = k.extract()?;
+        match key.as_str() {
+            "footprint" => c.footprint = v.extract()?,
+            "height" => c.height = v.extract()?,
+            "components" => c.components = v.extract()?,
+            "rounds" => c.rounds = v.extract()?,
+            "p_submodule" => c.p_submodule = v.extract()?,
+            "p_stack" => c.p_stack = v.extract()?,
+            "submodule_bricks" => c.submodule_bricks = v.extract()?,
+            "max_step_instances" => c.max_step_instances = v.extract()?,
+            "max_step_types" => c.max_step_types = v.extract()?,
+            "visibility" => c.visibility = v.extract()?,
+            "elevation" => c.elevation = v.extract()?,
+            "azimuth" => c.azimuth = v.extract()?,
+            "fill" => c.fill = v.extract()?,
+            "image_size" => c.image_size = v.extract()?,
+            "supersample" => c.supersample = v.extract()?,
+            "palette" => c.palette = v.extract()?,
+            "parts" => {
+                let ids: Vec<String> = v.extract()?;
+                c.parts = ids
+                    .iter()
+                    .map(|p| library().get(p).map(|d| d.id))
+                    .collect::<Result<_, BrickGeomError>>()
+                    .py()?;
+            }
+            other => {
+                return Err(PyValueError::new_err(format!(
+                    "unknown generator setting '{other}'"
+                )));
+            }
+        }
+    }
+    Ok(c)
+}
+
+/// The default generator settings as a dict.
+#[pyfunction]
+fn synth_default_config(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
+    let c = SynthConfig::default();
+    let d = PyDict::new(py);
+    d.set_item("footprint", c.footprint)?;
+    d.set_item("height", c.height)?;
+    d.set_item("components", c.components)?;
+    d.set_item("rounds", c.rounds)?;
+    d.set_item("p_submodule", c.p_submodule)?;
+    d.set_item("p_stack", c.p_stack)?;
+    d.set_item("submodule_bricks", c.submodule_bricks)?;
+    d.set_item("max_step_instances", c.max_step_instances)?;
+    d.set_item("max_step_types", c.max_step_types)?;
+    d.set_item("visibility", c.visibility)?;
+    d.set_item("elevation", c.elevation)?;
+    d.set_item("azimuth", c.azimuth)?;
+    d.set_item("fill", c.fill)?;
+    d.set_item("image_size", c.image_size)?;
+    d.set_item("supersample", c.supersample)?;
+    d.set_item("palette", c.palette)?;
+    d.set_item("parts", c.parts)?;
+    Ok(d)
+}
+
+fn build_dict<'py>(
+    py: Python<'py>,
+    b: &Build,
+    images: Vec<StepImage>,
+) -> PyResult<Bound<'py, PyDict>> {
+    let d = PyDict::new(py);
+    let insts = PyList::empty(py);
+    for inst in &b.instances {
+        let id = PyDict::new(py);
+        match inst.cref {
+            ComponentRef::Part(p) => id.set_item("part", p)?,
+            ComponentRef::Submodule(k) => id.set_item("submodule", k)?,
+        }
+        id.set_item("yaw", inst.pose.yaw)?;
+        id.set_item("t", inst.pose.t)?;
+        id.set_item("colour", inst.colour)?;
+        insts.append(id)?;
+    }
+    d.set_item("instances", insts)?;
+    let steps = PyList::empty(py);
+    for (step, img) in b.steps.iter().zip(images) {
+        let sd = PyDict::new(py);
+        sd.set_item("instances", &step.instances)?;
+        let attach: Vec<&str> = step.attach.iter().map(|a| a.name()).collect();
+        sd.set_item("attach", attach)?;
+        sd.set_item("camera", camera_dict(py, &step.camera)?)?;
+        let (h, w) = (img.height as usize, img.width as usize);
+        sd.set_item(
+            "rgb",
+            Array3::from_shape_vec((h, w, 3), img.rgb)
+                .expect("h*w*3")
+                .into_pyarray(py),
+        )?;
+        sd.set_item(
+            "ids",
+            Array2::from_shape_vec((h, w), img.ids)
+                .expect("h*w")
+                .into_pyarray(py),
+        )?;
+        let views = PyList::empty(py);
+        for v in img.instances {
+            let vd = PyDict::new(py);
+            vd.set_item("keypoints", v.keypoints)?;
+            vd.set_item("box", v.bbox)?;
+            vd.set_item("visible_fraction", v.visible_fraction)?;
+            views.append(vd)?;
+        }
+        sd.set_item("views", views)?;
+        steps.append(sd)?;
+    }
+    d.set_item("steps", steps)?;
+    Ok(d)
+}
+
+/// Generate and render one manual: a dict {seed, config, main, submodules}. `main` and each
+/// submodule's `build` hold `instances` (component, yaw, t, colour) and `steps` (instance
+/// indices, attach kinds, camera, `rgb`/`ids` images, per-instance keypoints, box, visibility).
+#[pyfunction]
+#[pyo3(signature = (seed, config=None, ldraw_dir=None))]
+fn synth_manual<'py>(
+    py: Python<'py>,
+    seed: u64,
+    config: Option<&Bound<'py, PyDict>>,
+    ldraw_dir: Option<PathBuf>,
+) -> PyResult<Bound<'py, PyDict>> {
+    let cfg = config_from(config)?;
+    let (manual, main_imgs, sub_imgs) = py
+        .detach(|| -> Result<_, BrickGeomError> {
+            let src = match &ldraw_dir {
+                None => MeshSource::builtin(),
+                Some(r) => MeshSource::ldraw(r),
+            };
+            let colours = ColourTable::builtin();
+            let m = generate(&cfg, seed)?;
+            let main = render_build(&m.main, &cfg, &src, &colours)?;
+            let subs = m
+                .submodules
+                .iter()
+                .map(|s| render_build(&s.build, &cfg, &src, &colours))
+                .collect::<Result<Vec<_>, _>>()?;
+            Ok((m, main, subs))
+        })
+        .py()?;
+    let d = PyDict::new(py);
+    d.set_item("seed", seed)?;
+    d.set_item("image_size", cfg.image_size)?;
+    d.set_item("visibility", cfg.visibility)?;
+    d.set_item("main", build_dict(py, &manual.main, main_imgs)?)?;
+    let subs = PyList::empty(py);
+    for (s, imgs) in manual.submodules.iter().zip(sub_imgs) {
+        let sd = PyDict::new(py);
+        sd.set_item("name", &s.name)?;
+        sd.set_item("symmetry", s.component.symmetry)?;
+        let bricks = PyList::empty(py);
+        for b in &s.component.bricks {
+            let bd = PyDict::new(py);
+            bd.set_item("part", b.part)?;
+            bd.set_item("yaw", b.pose.yaw)?;
+            bd.set_item("t", b.pose.t)?;
+            bd.set_item("colour", b.colour)?;
+            bricks.append(bd)?;
+        }
+        sd.set_item("bricks", bricks)?;
+        sd.set_item("topmost", &s.component.topmost)?;
+        sd.set_item("build", build_dict(py, &s.build, imgs)?)?;
+        subs.append(sd)?;
+    }
+    d.set_item("submodules", subs)?;
+    Ok(d)
+}
+
+pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_function(wrap_pyfunction!(synth_manual, m)?)?;
+    m.add_function(wrap_pyfunction!(synth_default_config, m)?)?;
+    Ok(())
+}
