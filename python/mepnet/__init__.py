@@ -7,8 +7,8 @@ Users import from here (or the submodules ``mepnet.geom``, ``mepnet.ldraw``), ne
 from mepnet.geom import (
     Assembly,
     BelowGroundError,
-    Camera,
     BrickGeomError,
+    Camera,
     CollisionError,
     Component,
     FileError,

@@ -8,8 +8,8 @@ Meshes are in LDU, y up.
 from mepnet._brickgeom import (
     Assembly,
     BelowGroundError,
-    Camera,
     BrickGeomError,
+    Camera,
     CollisionError,
     Component,
     FileError,
