@@ -27,8 +27,8 @@ def bundled_example() -> Path:
     return Path(str(resources.files("mepnet") / "data" / "example.mpd"))
 
 
-def build_order(checks: list[dict[str, Any]]) -> list[int]:
-    """Model indices with every submodel before the models that use it (main model last)."""
+def build_order(checks: list[dict[str, Any]], root: int = 0) -> list[int]:
+    """Model indices with every submodel before the models that use it (``root`` last)."""
     order: list[int] = []
     seen: set[int] = set()
 
@@ -43,7 +43,7 @@ def build_order(checks: list[dict[str, Any]]) -> list[int]:
         order.append(m)
 
     if checks:
-        visit(0)
+        visit(root)
     return order
 
 

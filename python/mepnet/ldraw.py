@@ -20,6 +20,7 @@ import os
 import sys
 import tempfile
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 from mepnet import _brickgeom as _bg
@@ -304,6 +305,27 @@ def _cmd_info(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_to_manual(args: argparse.Namespace) -> int:
+    from mepnet.convert import convert
+
+    out = Path(args.out)
+    if out.exists():
+        raise BrickGeomError(f"{out}: already exists (choose a new folder)")
+    if not 16 <= args.size <= 2048:
+        raise BrickGeomError(f"--size must be within 16..2048 pixels, got {args.size}")
+    if args.ldraw_dir is not None and not (Path(args.ldraw_dir) / "parts").is_dir():
+        raise BrickGeomError(
+            f"--ldraw-dir {args.ldraw_dir}: not an LDraw library (no parts/ folder)"
+        )
+    r = convert(read(args.file), out, args.ldraw_dir, args.size, args.supersample)
+    print(
+        f"{r['file']}: {r['steps']} steps ({r['submodules']} submodules), parts kept "
+        f"{r['parts_kept']}/{r['parts_in_file']} ({r['substituted']} substituted, {r['dropped']} "
+        f"references dropped) -> {out}"
+    )
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The ``python -m mepnet.ldraw`` argument parser."""
     ap = argparse.ArgumentParser(
@@ -318,6 +340,22 @@ def build_parser() -> argparse.ArgumentParser:
         "--markdown", action="store_true", help="print one markdown table row per file"
     )
     info.set_defaults(run=_cmd_info)
+    conv = sub.add_parser(
+        "to-manual", help="convert a model into a manual folder (images + manual.json)"
+    )
+    conv.add_argument("file", metavar="FILE", help=".ldr or .mpd file")
+    conv.add_argument("--out", required=True, help="manual folder to write (must not exist)")
+    conv.add_argument(
+        "--ldraw-dir",
+        default=os.environ.get("LDRAWDIR"),
+        help="LDraw library used to measure parts outside the library for substitution and to "
+        "render real part geometry (default: $LDRAWDIR; without it such parts are dropped)",
+    )
+    conv.add_argument("--size", type=int, default=256, help="image side in pixels (default 256)")
+    conv.add_argument(
+        "--supersample", type=int, default=1, choices=(1, 3), help="anti-aliasing (3)"
+    )
+    conv.set_defaults(run=_cmd_to_manual)
     return ap
 
 

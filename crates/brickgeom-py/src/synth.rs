@@ -207,5 +207,125 @@ fn synth_manual<'py>(
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(synth_manual, m)?)?;
     m.add_function(wrap_pyfunction!(synth_default_config, m)?)?;
+    m.add_function(wrap_pyfunction!(render_plan, m)?)?;
     Ok(())
+}
+
+/// Render a given build (e.g. a real model converted to the lattice) the way generated manuals
+/// are rendered. `instances`: `(component, ref, yaw, (x, y, z), colour)` with `ref` a part id
+/// or a submodule index; `steps`: instance indices per step; `cameras`: one per step. Returns
+/// the build dict of `synth_manual`, with `attach` computed against each step's base shape
+/// ("unsupported" where a part is not connected or collides).
+#[pyfunction]
+#[pyo3(signature = (instances, steps, cameras, image_size, supersample=1, ldraw_dir=None))]
+#[allow(clippy::type_complexity)]
+fn render_plan<'py>(
+    py: Python<'py>,
+    instances: Vec<(
+        Bound<'py, crate::geom::PyComponent>,
+        Bound<'py, PyAny>,
+        i64,
+        (i32, i32, i32),
+        i32,
+    )>,
+    steps: Vec<Vec<usize>>,
+    cameras: Vec<Bound<'py, crate::render::PyCamera>>,
+    image_size: u32,
+    supersample: u32,
+    ldraw_dir: Option<PathBuf>,
+) -> PyResult<Bound<'py, PyDict>> {
+    use brickgeom::synth::{PlacedInstance, SynthStep};
+    use brickgeom::{AttachKind, Pose};
+    if cameras.len() != steps.len() {
+        return Err(PyValueError::new_err(format!(
+            "{} cameras for {} steps",
+            cameras.len(),
+            steps.len()
+        )));
+    }
+    let mut placed = Vec::with_capacity(instances.len());
+    for (k, (comp, r, yaw, t, colour)) in instances.iter().enumerate() {
+        let cref = if let Ok(i) = r.extract::<usize>() {
+            ComponentRef::Submodule(i)
+        } else {
+            let id: String = r.extract()?;
+            ComponentRef::Part(library().get(&id).py()?.id)
+        };
+        if !(0..=3).contains(yaw) {
+            return Err(PyValueError::new_err(format!(
+                "instance {k}: yaw {yaw} is not 0..=3"
+            )));
+        }
+        placed.push(PlacedInstance {
+            cref,
+            component: comp.get().inner.clone(),
+            pose: Pose::new(*yaw as u8, [t.0, t.1, t.2]),
+            colour: *colour,
+        });
+    }
+    for (s, step) in steps.iter().enumerate() {
+        if let Some(&bad) = step.iter().find(|&&i| i >= placed.len()) {
+            return Err(PyValueError::new_err(format!(
+                "step {}: no instance {bad}",
+                s + 1
+            )));
+        }
+    }
+    let build = Build {
+        instances: placed,
+        steps: steps
+            .iter()
+            .zip(&cameras)
+            .map(|(ids, cam)| SynthStep {
+                instances: ids.clone(),
+                attach: vec![AttachKind::Ground; ids.len()],
+                camera: cam.get().inner,
+            })
+            .collect(),
+    };
+    let cfg = SynthConfig {
+        image_size,
+        supersample,
+        ..SynthConfig::default()
+    };
+    let (images, attach) = py
+        .detach(|| -> Result<_, BrickGeomError> {
+            let src = match &ldraw_dir {
+                None => MeshSource::builtin(),
+                Some(r) => MeshSource::ldraw(r),
+            };
+            let images = render_build(&build, &cfg, &src, &ColourTable::builtin())?;
+            let mut asm = brickgeom::Assembly::new();
+            let mut attach = Vec::new();
+            for step in &build.steps {
+                let items: Vec<_> = step
+                    .instances
+                    .iter()
+                    .map(|&i| {
+                        (
+                            build.instances[i].component.clone(),
+                            build.instances[i].pose,
+                        )
+                    })
+                    .collect();
+                attach.push(
+                    asm.check_step(&items)
+                        .into_iter()
+                        .map(|r| r.map_or("unsupported", |k| k.name()))
+                        .collect::<Vec<_>>(),
+                );
+                for (c, p) in items {
+                    // overlapping real parts stay out of the shape
+                    let _ = asm.add(c, p);
+                }
+            }
+            Ok((images, attach))
+        })
+        .py()?;
+    let d = build_dict(py, &build, images)?;
+    let steps_list = d.get_item("steps")?.expect("build_dict sets steps");
+    for (s, a) in steps_list.try_iter()?.zip(attach) {
+        s?.set_item("attach", a)?;
+    }
+    Ok(d)
 }

@@ -48,24 +48,75 @@ pub struct LatticeModel {
     pub offset: [f64; 3],
 }
 
-/// The most common lattice residual (x mod 10, y mod 8, z mod 10) of part placements.
-fn lattice_offset(refs: &[&crate::ldraw::LdrawRef]) -> [f64; 3] {
+/// The lattice residual (x mod 10, y mod 8, z mod 10) of a placement, in hundredths of an LDU
+/// (so float noise does not split votes); None for non-finite positions.
+fn residual(position: [f64; 3]) -> Option<[i64; 3]> {
     let unit = [10.0, 8.0, 10.0];
-    let mut votes: HashMap<[i64; 3], usize> = HashMap::new();
-    for r in refs {
-        if !r.position.iter().all(|v| v.is_finite()) {
-            continue;
+    position.iter().all(|v| v.is_finite()).then(|| {
+        [0, 1, 2].map(|a| {
+            ((position[a].rem_euclid(unit[a]) * 100.0).round() as i64) % (unit[a] as i64 * 100)
+        })
+    })
+}
+
+/// Lattice offsets of every model: the residual with the most parts behind it. A submodel
+/// reference votes with its flattened part count at its own offset carried into the parent
+/// (P = M off_sub + pos), so a main model follows its biggest submodel rather than a few wheels.
+fn model_offsets(file: &LdrawFile, index: &HashMap<String, usize>) -> Vec<[f64; 3]> {
+    fn solve(
+        m: usize,
+        file: &LdrawFile,
+        index: &HashMap<String, usize>,
+        memo: &mut Vec<Option<([f64; 3], u64)>>,
+        depth: usize,
+    ) -> ([f64; 3], u64) {
+        if let Some(v) = memo[m] {
+            return v;
         }
-        // residuals in hundredths of an LDU, so float noise does not split the vote
-        let key = [0, 1, 2].map(|a| {
-            ((r.position[a].rem_euclid(unit[a]) * 100.0).round() as i64) % (unit[a] as i64 * 100)
-        });
-        *votes.entry(key).or_default() += 1;
+        // the parser rejects cycles; the depth bound only keeps a hand-built file from recursing
+        if depth > file.models.len() {
+            return ([0.0; 3], 0);
+        }
+        let mut votes: HashMap<[i64; 3], u64> = HashMap::new();
+        let mut size = 0u64;
+        for r in file.models[m].steps.iter().flatten() {
+            let sub = if r.is_submodel {
+                index.get(&normalise_name(&r.name)).copied()
+            } else {
+                None
+            };
+            let (pos, weight) = match sub {
+                Some(s) => {
+                    let (off, n) = solve(s, file, index, memo, depth + 1);
+                    let mut p = r.position;
+                    for (a, v) in p.iter_mut().enumerate() {
+                        *v += (0..3).map(|b| r.matrix[a][b] * off[b]).sum::<f64>();
+                    }
+                    (p, n)
+                }
+                None => (r.position, 1),
+            };
+            size += weight;
+            // tilted references (display stands, sideways building) say nothing about the lattice
+            let m32 = r.matrix.map(|row| row.map(|v| v as f32));
+            if crate::lattice::yaw_from_matrix(&m32, 1e-3).is_none() {
+                continue;
+            }
+            if let Some(key) = residual(pos) {
+                *votes.entry(key).or_default() += weight;
+            }
+        }
+        let off = votes
+            .into_iter()
+            .max_by_key(|&(k, n)| (n, std::cmp::Reverse(k)))
+            .map_or([0.0; 3], |(k, _)| k.map(|v| v as f64 / 100.0));
+        memo[m] = Some((off, size));
+        (off, size)
     }
-    votes
-        .into_iter()
-        .max_by_key(|&(k, n)| (n, std::cmp::Reverse(k)))
-        .map_or([0.0; 3], |(k, _)| k.map(|v| v as f64 / 100.0))
+    let mut memo = vec![None; file.models.len()];
+    (0..file.models.len())
+        .map(|m| solve(m, file, index, &mut memo, 0).0)
+        .collect()
 }
 
 /// Why an item cannot be placed as a component.
@@ -102,19 +153,7 @@ pub fn lattice_models(file: &LdrawFile) -> Vec<LatticeModel> {
         .map(|(i, m)| (normalise_name(&m.name), i))
         .collect();
     let lib = library();
-    let offsets: Vec<[f64; 3]> = file
-        .models
-        .iter()
-        .map(|m| {
-            let parts: Vec<&crate::ldraw::LdrawRef> = m
-                .steps
-                .iter()
-                .flatten()
-                .filter(|r| !r.is_submodel)
-                .collect();
-            lattice_offset(&parts)
-        })
-        .collect();
+    let offsets = model_offsets(file, &index);
     file.models
         .iter()
         .enumerate()
