@@ -241,7 +241,7 @@ def convert(
         # Drop the shape onto the ground (lowest voxel at y = 0), measuring with an assembly.
         probe = _bg.Assembly()
         keep = []
-        for k, (comp, ref, yaw, t, col) in enumerate(placed):
+        for k, (comp, _ref, yaw, t, col) in enumerate(placed):
             try:
                 probe.add(comp, yaw, t, col)
                 keep.append(k)
