@@ -1,0 +1,229 @@
+"""python -m mepnet.synth and the dataset format: determinism, atomic folders, resume, bad input,
+the typed reader and the step dataset."""
+
+from __future__ import annotations
+
+import filecmp
+import json
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from mepnet import _brickgeom as _bg
+from mepnet.data import ManualFormatError, StepDataset, load_manual
+
+SMALL = ["--size", "64"]
+
+
+def synth(*args: str, timeout: float = 600) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "mepnet.synth", "--no-progress", *args],
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
+
+
+def same_tree(a: Path, b: Path) -> bool:
+    cmp = filecmp.dircmp(a, b)
+
+    def clean(c: filecmp.dircmp) -> bool:
+        if c.left_only or c.right_only or c.funny_files:
+            return False
+        _, mismatch, errors = filecmp.cmpfiles(c.left, c.right, c.common_files, shallow=False)
+        return not mismatch and not errors and all(clean(s) for s in c.subdirs.values())
+
+    return clean(cmp)
+
+
+def test_byte_identical_whatever_the_worker_count(tmp_path: Path):
+    r1 = synth(
+        "--out", str(tmp_path / "w1"), "--manuals", "3", "--seed", "40", "--workers", "1", *SMALL
+    )
+    r2 = synth(
+        "--out", str(tmp_path / "w2"), "--manuals", "3", "--seed", "40", "--workers", "2", *SMALL
+    )
+    assert r1.returncode == 0 and r2.returncode == 0, r1.stderr + r2.stderr
+    assert sorted(p.name for p in (tmp_path / "w1").iterdir()) == [
+        "manual_00000040",
+        "manual_00000041",
+        "manual_00000042",
+    ]
+    assert same_tree(tmp_path / "w1", tmp_path / "w2")
+
+
+def test_rerun_completes_only_what_is_missing(tmp_path: Path):
+    out = tmp_path / "d"
+    assert synth("--out", str(out), "--manuals", "2", "--seed", "7", *SMALL).returncode == 0
+    first = (out / "manual_00000007" / "manual.json").stat().st_mtime_ns
+    # a half-written leftover of a killed run, and a missing manual
+    (out / ".tmp-manual_00000008-abc").mkdir()
+    (out / ".tmp-manual_00000008-abc" / "step_001.png").write_bytes(b"partial")
+    import shutil
+
+    shutil.rmtree(out / "manual_00000008")
+    r = synth("--out", str(out), "--manuals", "2", "--seed", "7", *SMALL)
+    assert r.returncode == 0, r.stderr
+    assert "1 already there" in r.stdout
+    assert (out / "manual_00000007" / "manual.json").stat().st_mtime_ns == first
+    assert (out / "manual_00000008" / "manual.json").is_file()
+    assert not list(out.glob(".tmp-*"))
+
+
+def test_killed_run_leaves_only_complete_manuals(tmp_path: Path):
+    out = tmp_path / "k"
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "mepnet.synth",
+            "--no-progress",
+            "--out",
+            str(out),
+            "--manuals",
+            "200",
+            "--seed",
+            "0",
+            *SMALL,
+        ],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    deadline = time.time() + 120
+    while time.time() < deadline and len(list(out.glob("manual_*"))) < 2:
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    finished = list(out.glob("manual_*"))
+    assert finished, "nothing was generated before the kill"
+    for d in finished:
+        assert (d / "manual.json").is_file(), f"{d} is incomplete"
+        load_manual(d)
+    # the rerun finishes the job and agrees with a clean run
+    r = synth("--out", str(out), "--manuals", "4", "--seed", "0", *SMALL)
+    assert r.returncode == 0, r.stderr
+    assert not list(out.glob(".tmp-*"))
+    clean = tmp_path / "clean"
+    assert synth("--out", str(clean), "--manuals", "4", "--seed", "0", *SMALL).returncode == 0
+    for d in clean.iterdir():
+        assert same_tree(d, out / d.name)
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--manuals", "0"], "--manuals"),
+        (["--manuals", "1", "--size", "0"], "--size"),
+        (["--manuals", "1", "--size", "100000"], "--size"),
+        (["--manuals", "1", "--workers", "0"], "--workers"),
+        (["--manuals", "1", "--seed", "-3"], "--seed"),
+        (["--manuals", "1", "--ldraw-dir", "/nonexistent"], "not an LDraw library"),
+    ],
+)
+def test_bad_arguments_exit_2(tmp_path: Path, args: list[str], message: str):
+    r = synth("--out", str(tmp_path / "o"), *args)
+    assert r.returncode == 2
+    assert message in r.stderr and "Traceback" not in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1
+
+
+def test_bad_config_and_unwritable_output(tmp_path: Path):
+    cfg = tmp_path / "cfg.json"
+    cfg.write_text(json.dumps({"visibility": 3.0}))
+    r = synth("--out", str(tmp_path / "o"), "--manuals", "1", "--config", str(cfg))
+    assert r.returncode == 2 and "visibility" in r.stderr and "Traceback" not in r.stderr
+    cfg.write_text(json.dumps({"no_such_setting": 1}))
+    r = synth("--out", str(tmp_path / "o"), "--manuals", "1", "--config", str(cfg))
+    assert r.returncode == 2 and "no_such_setting" in r.stderr
+    blocker = tmp_path / "file"
+    blocker.write_text("not a folder")
+    r = synth("--out", str(blocker / "sub"), "--manuals", "1")
+    assert r.returncode == 2 and "cannot write" in r.stderr
+    assert not (blocker.parent / "sub").exists()
+
+
+@pytest.fixture(scope="module")
+def manuals(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("manuals")
+    r = synth("--out", str(out), "--manuals", "3", "--seed", "11", "--size", "128")
+    assert r.returncode == 0, r.stderr
+    return out
+
+
+def test_typed_reader_and_annotations(manuals: Path):
+    m = load_manual(manuals / "manual_00000011")
+    assert m.image_size == (128, 128) and m.source["kind"] == "synthetic" and m.source["seed"] == 11
+    assert len(m.main.steps) > 3
+    seen: set[int] = set()
+    for k, step in enumerate(m.main.steps):
+        img, ids = step.image(), step.ids()
+        assert img.shape == (128, 128, 3) and img.dtype == np.uint8
+        assert ids.shape == (128, 128) and ids.dtype == np.int32
+        assert sum(c.count for c in step.components) == len(step.views) <= 10
+        assert len(step.components) <= 5
+        seen.update(step.instance_ids)
+        # the instance map shows exactly the instances added so far
+        shown = set(np.unique(ids)) - {-1}
+        assert shown <= seen
+        for v in step.views:
+            mask = ids == v.id
+            assert mask.any() and v.visible_fraction >= 0.25
+            x0, y0, x1, y1 = v.box
+            ys, xs = np.nonzero(mask)
+            assert (xs.min(), ys.min(), xs.max() + 1, ys.max() + 1) == (x0, y0, x1, y1)
+            assert v.attach in ("on_studs", "from_below", "ground")
+        # the poses in the file rebuild a valid base shape step after step
+        base = m.assembly_before(k)
+        assert len(base) == len(seen) - len(step.views)
+    assert seen == set(range(len(m.main.instances)))
+
+
+def test_step_dataset(manuals: Path):
+    ds = StepDataset(manuals)
+    n_main = sum(len(load_manual(p).main.steps) for p in sorted(manuals.iterdir()))
+    assert len(ds) == n_main
+    item = ds[len(ds) - 1]
+    assert item["image"].shape == (128, 128, 3)
+    with_subs = StepDataset(manuals, submodules=True)
+    assert len(with_subs) >= len(ds)
+
+
+def test_reader_rejects_bad_folders(tmp_path: Path, manuals: Path):
+    with pytest.raises(ManualFormatError, match="no manual.json"):
+        load_manual(tmp_path)
+    bad = tmp_path / "bad"
+    bad.mkdir()
+    (bad / "manual.json").write_text("{not json")
+    with pytest.raises(ManualFormatError, match="not valid JSON"):
+        load_manual(bad)
+    doc = json.loads((manuals / "manual_00000011" / "manual.json").read_text())
+    doc["version"] = 99
+    (bad / "manual.json").write_text(json.dumps(doc))
+    with pytest.raises(ManualFormatError, match="version 99"):
+        load_manual(bad)
+
+
+def test_camera_and_render_bad_input():
+    with pytest.raises(_bg.InvalidArgumentError, match="non-finite"):
+        _bg.Camera(float("nan"), 225.0)
+    with pytest.raises(_bg.InvalidArgumentError, match="scale"):
+        _bg.Camera(30.0, 225.0, 0.0, 0.0)
+    asm = _bg.Assembly()
+    asm.add(_bg.Component.primitive("3001"), 0, (0, 3, 0))
+    cam = _bg.Camera()
+    for w, h in ((0, 64), (64, 100_000)):
+        with pytest.raises(_bg.InvalidArgumentError, match="image size"):
+            _bg.render(asm, cam, w, h)
+    # an empty scene renders an empty (white) image, not an error
+    empty = _bg.render(_bg.Assembly(), cam, 8, 8)
+    assert (empty["ids"] == -1).all() and (empty["rgb"] == 255).all()
+
+
+def test_projection_of_known_points():
+    cam = _bg.Camera(0.0, 0.0, 0.0, 0.01, (0.0, 0.0))
+    px, depth = cam.project(np.array([[0.0, 0.0, 0.0], [50.0, 20.0, 10.0]]), 200, 100)
+    assert np.allclose(px, [[100.0, 50.0], [150.0, 40.0]]) and np.allclose(depth, [0.0, -10.0])
