@@ -36,6 +36,7 @@ test: install
 bench: install
 	$(PY) tests/benchmarks/bench_geom.py --out docs/benchmarks.md
 	$(PY) tests/benchmarks/bench_render.py --out docs/benchmarks.md
+	$(PY) tests/benchmarks/bench_synth.py --out docs/benchmarks.md
 
 lint: install
 	cargo fmt --all -- --check

@@ -250,8 +250,14 @@ def write_markdown(rows: list[dict], path: str) -> None:
             f"| {r['bricks']} | {r['operation']} | {r['results']} | {r['rust_ms']:.3f} | "
             f"{r['numpy_ms']:.3f} | {r['speedup']:.1f}x |"
         )
-    marker_start, marker_end = "<!-- bench_geom start -->", "<!-- bench_geom end -->"
-    block = "\n".join([marker_start, *section, marker_end])
+    replace_section(path, "bench_geom", "\n".join(section))
+
+
+def replace_section(path: str, name: str, body: str) -> None:
+    """Replace (or append) the section between ``<!-- name start/end -->`` markers of a markdown
+    file, writing atomically; other sections are kept."""
+    marker_start, marker_end = f"<!-- {name} start -->", f"<!-- {name} end -->"
+    block = "\n".join([marker_start, body, marker_end])
     text = open(path).read() if os.path.exists(path) else "# Benchmarks\n"
     if marker_start in text:
         head, rest = text.split(marker_start, 1)
