@@ -142,3 +142,17 @@ def check_ldraw(file: dict[str, Any]) -> list[dict[str, Any]]: ...
 def load_part_mesh(
     root: str, id: str
 ) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.uint32], int]: ...
+
+# Synthetic manuals (wrapped by mepnet.synth / mepnet.data / mepnet.convert)
+def synth_manual(
+    seed: int, config: dict[str, Any] | None = None, ldraw_dir: str | None = None
+) -> dict[str, Any]: ...
+def synth_default_config() -> dict[str, Any]: ...
+def render_plan(
+    instances: list[tuple[Component, str | int, int, _Int3, int]],
+    steps: list[list[int]],
+    cameras: list[Camera],
+    image_size: int,
+    supersample: int = 1,
+    ldraw_dir: str | None = None,
+) -> dict[str, Any]: ...

@@ -33,7 +33,6 @@ import argparse
 import json
 import os
 import sys
-import tempfile
 import time
 from functools import partial
 
@@ -43,7 +42,7 @@ import trimesh
 from trimesh.ray import ray_triangle
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from bench_geom import grow_assembly  # noqa: E402
+from bench_geom import grow_assembly, replace_section  # noqa: E402
 
 try:
     from trimesh.ray import ray_pyembree
@@ -332,19 +331,7 @@ def write_markdown(rows: list[dict], path: str, sample_rays: int) -> None:
         cells += [f"{p['s'] / s1:,.0f}x", f"{p['s'] / s3:,.0f}x", f"{p['id_agreement']:.2%}"]
         cells += [f"{p['setup_s']:.2f}"]
         section.append("| " + " | ".join(str(c) for c in cells) + " |")
-    marker_start, marker_end = "<!-- bench_render start -->", "<!-- bench_render end -->"
-    block = "\n".join([marker_start, *section, marker_end])
-    text = open(path).read() if os.path.exists(path) else "# Benchmarks\n"
-    if marker_start in text:
-        head_text, rest = text.split(marker_start, 1)
-        tail = rest.split(marker_end, 1)[1] if marker_end in rest else ""
-        text = head_text + block + tail
-    else:
-        text = text.rstrip() + "\n\n" + block + "\n"
-    d = os.path.dirname(os.path.abspath(path))
-    with tempfile.NamedTemporaryFile("w", dir=d, delete=False) as f:
-        f.write(text)
-    os.replace(f.name, path)
+    replace_section(path, "bench_render", "\n".join(section))
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -27,7 +27,22 @@ def run(manuals: int, workers: int, size: int) -> tuple[int, float]:
     with tempfile.TemporaryDirectory() as d:
         t0 = time.perf_counter()
         r = subprocess.run(
-            [sys.executable, "-m", "mepnet.synth", "--no-progress", "--out", d, "--manuals", str(manuals), "--seed", "1000", "--workers", str(workers), "--size", str(size)],
+            [
+                sys.executable,
+                "-m",
+                "mepnet.synth",
+                "--no-progress",
+                "--out",
+                d,
+                "--manuals",
+                str(manuals),
+                "--seed",
+                "1000",
+                "--workers",
+                str(workers),
+                "--size",
+                str(size),
+            ],
             capture_output=True,
             text=True,
             check=True,

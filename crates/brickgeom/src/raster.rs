@@ -161,61 +161,83 @@ pub fn render(items: &[RenderItem], camera: &Camera, opts: &RenderOptions) -> Re
         [l[0] as f32, l[1] as f32, l[2] as f32]
     };
 
+    // Triangle setup, in parallel over items (hundreds of thousands of triangles for big
+    // scenes); per item: screen triangles and faces (unit normal facing the camera, plane offset
+    // n . p in LDU, shade factor). Concatenated in item order, so the result is deterministic.
+    type Face = ([f32; 3], f32, f32);
+    let per_item: Vec<Result<(Vec<ScreenTri>, Vec<Face>)>> = items
+        .par_iter()
+        .enumerate()
+        .map(|(item, it)| {
+            let world: Vec<[f32; 3]> = it
+                .mesh
+                .vertices
+                .iter()
+                .map(|v| it.pose.apply_ldu(*v))
+                .collect();
+            let proj: Vec<[f32; 3]> = world
+                .iter()
+                .map(|v| {
+                    let (x, y, z) = (v[0] as f64, v[1] as f64, v[2] as f64);
+                    [
+                        (m[(0, 0)] * x + m[(0, 1)] * y + m[(0, 2)] * z + m[(0, 3)]) as f32,
+                        (m[(1, 0)] * x + m[(1, 1)] * y + m[(1, 2)] * z + m[(1, 3)]) as f32,
+                        (view[0] * x + view[1] * y + view[2] * z) as f32,
+                    ]
+                })
+                .collect();
+            let mut tris = Vec::with_capacity(it.mesh.triangles.len());
+            let mut faces = Vec::with_capacity(it.mesh.triangles.len());
+            for t in &it.mesh.triangles {
+                let idx = [t[0] as usize, t[1] as usize, t[2] as usize];
+                if idx.iter().any(|&i| i >= proj.len()) {
+                    return Err(BrickGeomError::InvalidArgument(format!(
+                        "mesh of item {item} has a triangle index beyond its {} vertices",
+                        proj.len()
+                    )));
+                }
+                let [a, b, c] = idx.map(|i| world[i]);
+                let u = [b[0] - a[0], b[1] - a[1], b[2] - a[2]];
+                let v = [c[0] - a[0], c[1] - a[1], c[2] - a[2]];
+                let mut n = [
+                    u[1] * v[2] - u[2] * v[1],
+                    u[2] * v[0] - u[0] * v[2],
+                    u[0] * v[1] - u[1] * v[0],
+                ];
+                let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+                if len.is_nan() || len <= 1e-12 {
+                    continue;
+                }
+                n = [n[0] / len, n[1] / len, n[2] / len];
+                // Two-sided: real LDraw meshes are not consistently wound.
+                let towards_camera =
+                    -(n[0] * view[0] as f32 + n[1] * view[1] as f32 + n[2] * view[2] as f32);
+                if towards_camera < 0.0 {
+                    n = [-n[0], -n[1], -n[2]];
+                }
+                let diffuse = (n[0] * light[0] + n[1] * light[1] + n[2] * light[2]).max(0.0);
+                let shade = 0.62 + 0.38 * diffuse;
+                let offset = n[0] * a[0] + n[1] * a[1] + n[2] * a[2];
+                faces.push((n, offset, shade));
+                tris.push(ScreenTri {
+                    p: idx.map(|i| proj[i]),
+                    item: item as u32,
+                    face: (faces.len() - 1) as u32,
+                });
+            }
+            Ok((tris, faces))
+        })
+        .collect();
     let mut tris: Vec<ScreenTri> = Vec::new();
-    // Per face: unit normal facing the camera, plane offset n . p (LDU) and shade factor.
-    let mut faces: Vec<([f32; 3], f32, f32)> = Vec::new();
-    for (item, it) in items.iter().enumerate() {
-        let proj: Vec<[f32; 3]> = it
-            .mesh
-            .vertices
-            .iter()
-            .map(|v| {
-                let v = it.pose.apply_ldu(*v);
-                let (x, y, z) = (v[0] as f64, v[1] as f64, v[2] as f64);
-                [
-                    (m[(0, 0)] * x + m[(0, 1)] * y + m[(0, 2)] * z + m[(0, 3)]) as f32,
-                    (m[(1, 0)] * x + m[(1, 1)] * y + m[(1, 2)] * z + m[(1, 3)]) as f32,
-                    (view[0] * x + view[1] * y + view[2] * z) as f32,
-                ]
-            })
-            .collect();
-        for t in &it.mesh.triangles {
-            let idx = [t[0] as usize, t[1] as usize, t[2] as usize];
-            if idx.iter().any(|&i| i >= proj.len()) {
-                return Err(BrickGeomError::InvalidArgument(format!(
-                    "mesh of item {item} has a triangle index beyond its {} vertices",
-                    proj.len()
-                )));
-            }
-            let [a, b, c] = idx.map(|i| it.pose.apply_ldu(it.mesh.vertices[i]));
-            let u = [b[0] - a[0], b[1] - a[1], b[2] - a[2]];
-            let v = [c[0] - a[0], c[1] - a[1], c[2] - a[2]];
-            let mut n = [
-                u[1] * v[2] - u[2] * v[1],
-                u[2] * v[0] - u[0] * v[2],
-                u[0] * v[1] - u[1] * v[0],
-            ];
-            let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
-            if len.is_nan() || len <= 1e-12 {
-                continue;
-            }
-            n = [n[0] / len, n[1] / len, n[2] / len];
-            // Two-sided: real LDraw meshes are not consistently wound.
-            let towards_camera =
-                -(n[0] * view[0] as f32 + n[1] * view[1] as f32 + n[2] * view[2] as f32);
-            if towards_camera < 0.0 {
-                n = [-n[0], -n[1], -n[2]];
-            }
-            let diffuse = (n[0] * light[0] + n[1] * light[1] + n[2] * light[2]).max(0.0);
-            let shade = 0.62 + 0.38 * diffuse;
-            let offset = n[0] * a[0] + n[1] * a[1] + n[2] * a[2];
-            faces.push((n, offset, shade));
-            tris.push(ScreenTri {
-                p: idx.map(|i| proj[i]),
-                item: item as u32,
-                face: (faces.len() - 1) as u32,
-            });
-        }
+    let mut faces: Vec<Face> = Vec::new();
+    for r in per_item {
+        let (t, f) = r?;
+        let base = faces.len() as u32;
+        tris.extend(t.into_iter().map(|mut x| {
+            x.face += base;
+            x
+        }));
+        faces.extend(f);
     }
 
     // Bin triangles into bands of rows.
