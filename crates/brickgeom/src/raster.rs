@@ -497,6 +497,132 @@ fn raster_triangle(
     }
 }
 
+/// A binary target mask and the depth of the scene it is compared against, for scoring
+/// candidate placements by analysis-by-synthesis.
+#[derive(Debug, Clone)]
+pub struct MaskTarget {
+    pub width: u32,
+    pub height: u32,
+    /// Depth of the base shape at each pixel (`f32::INFINITY` where empty).
+    pub base_depth: Vec<f32>,
+    /// The predicted instance mask.
+    pub mask: Vec<bool>,
+    /// Number of set pixels in `mask`.
+    pub mask_area: u64,
+}
+
+impl MaskTarget {
+    /// A target from a base render's depth and a mask (both `width * height`, row major).
+    pub fn new(width: u32, height: u32, base_depth: Vec<f32>, mask: Vec<bool>) -> Result<Self> {
+        let n = width as usize * height as usize;
+        if base_depth.len() != n || mask.len() != n {
+            return Err(BrickGeomError::InvalidArgument(format!(
+                "mask and depth must have {width}x{height} = {n} pixels, got {} and {}",
+                mask.len(),
+                base_depth.len()
+            )));
+        }
+        let mask_area = mask.iter().filter(|&&m| m).count() as u64;
+        Ok(MaskTarget {
+            width,
+            height,
+            base_depth,
+            mask,
+            mask_area,
+        })
+    }
+}
+
+/// IoU between the visible silhouette of meshes placed at poses (in front of the target's base
+/// depth) and the target mask; also returns the visible pixel count. Only the candidate's
+/// screen bounding box is rasterized, so scoring thousands of candidates is cheap.
+pub fn silhouette_iou(
+    meshes: &[(&Mesh, Pose)],
+    camera: &Camera,
+    target: &MaskTarget,
+) -> Result<(f64, u64)> {
+    let (w, h) = (target.width as usize, target.height as usize);
+    let m = camera.pixel_matrix(target.width, target.height);
+    let rot = camera.rotation();
+    let view = [rot[(2, 0)], rot[(2, 1)], rot[(2, 2)]];
+    let mut tris: Vec<[[f32; 3]; 3]> = Vec::new();
+    let (mut x_lo, mut y_lo, mut x_hi, mut y_hi) = (f32::MAX, f32::MAX, f32::MIN, f32::MIN);
+    for (mesh, pose) in meshes {
+        let proj: Vec<[f32; 3]> = mesh
+            .vertices
+            .iter()
+            .map(|v| {
+                let v = pose.apply_ldu(*v);
+                let (x, y, z) = (v[0] as f64, v[1] as f64, v[2] as f64);
+                [
+                    (m[(0, 0)] * x + m[(0, 1)] * y + m[(0, 2)] * z + m[(0, 3)]) as f32,
+                    (m[(1, 0)] * x + m[(1, 1)] * y + m[(1, 2)] * z + m[(1, 3)]) as f32,
+                    (view[0] * x + view[1] * y + view[2] * z) as f32,
+                ]
+            })
+            .collect();
+        for p in &proj {
+            x_lo = x_lo.min(p[0]);
+            x_hi = x_hi.max(p[0]);
+            y_lo = y_lo.min(p[1]);
+            y_hi = y_hi.max(p[1]);
+        }
+        for t in &mesh.triangles {
+            let idx = [t[0] as usize, t[1] as usize, t[2] as usize];
+            if idx.iter().any(|&i| i >= proj.len()) {
+                return Err(BrickGeomError::InvalidArgument(
+                    "mesh has a triangle index beyond its vertices".into(),
+                ));
+            }
+            tris.push(idx.map(|i| proj[i]));
+        }
+    }
+    let x0 = (x_lo.floor().max(0.0) as usize).min(w);
+    let y0 = (y_lo.floor().max(0.0) as usize).min(h);
+    let x1 = (x_hi.ceil().max(0.0) as usize).min(w);
+    let y1 = (y_hi.ceil().max(0.0) as usize).min(h);
+    let (bw, bh) = (x1.saturating_sub(x0), y1.saturating_sub(y0));
+    if bw == 0 || bh == 0 {
+        let iou = if target.mask_area == 0 { 1.0 } else { 0.0 };
+        return Ok((iou, 0));
+    }
+    let mut depth = vec![f32::INFINITY; bw * bh];
+    for t in &tris {
+        let shifted = ScreenTri {
+            p: t.map(|p| [p[0] - x0 as f32, p[1] - y0 as f32, p[2]]),
+            item: 0,
+            face: 0,
+        };
+        raster_triangle(&shifted, 0, bh, bw, |i, z| {
+            if z < depth[i] {
+                depth[i] = z;
+            }
+        });
+    }
+    let (mut visible, mut inter) = (0u64, 0u64);
+    for y in 0..bh {
+        for x in 0..bw {
+            let d = depth[y * bw + x];
+            let g = (y + y0) * w + x + x0;
+            if d < target.base_depth[g] {
+                visible += 1;
+                if target.mask[g] {
+                    inter += 1;
+                }
+            }
+        }
+    }
+    let union = visible + target.mask_area - inter;
+    Ok((
+        if union == 0 {
+            1.0
+        } else {
+            inter as f64 / union as f64
+        },
+        visible,
+    ))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

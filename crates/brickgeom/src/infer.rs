@@ -1,0 +1,583 @@
+//! Stage 2: exact 3D poses from 2D detections (paper §4.2 and the supplementary's "Details of
+//! 3D Pose Inference"), and the pure analysis-by-synthesis baseline.
+//!
+//! Translation. Under weak perspective the image offset between a component's keypoint and any
+//! of its points does not depend on depth, so a detected keypoint fixes the component up to a
+//! line along the view direction. We enumerate the lattice translations whose projected keypoint
+//! lies within a few pixels of the detection (at every height, or across the view when the camera
+//! looks horizontally), keep the valid ones (collision-free and attached on studs, from below or
+//! on the ground, whichever the geometry gives: the attach kind comes from the evidence, never
+//! from ground truth), and choose the one whose keypoint projects closest. Placements that
+//! project equally close (a depth ambiguity) are told apart by the instance mask when there is
+//! one (the synthesized visible silhouette over the base shape with the best IoU), else the one
+//! nearest the camera wins. This is the paper's stud/anti-stud matching and voting, made exact:
+//! a candidate that matches the keypoint also matches all of its connection points.
+//!
+//! Rotation. Primitives take the yaw from the 7-way symmetry-aware class; submodules are
+//! rotated by synthesis: every yaw x every topmost brick as the keypoint's anchor, the candidate
+//! mask rasterized over the current assembly and compared with the predicted mask (IoU).
+//!
+//! Several instances: placed one after another, most confident match first, so later ones can
+//! rest on earlier ones of the same step; a detection that fits nowhere is a failure for that
+//! component and the step goes on.
+
+use std::sync::Arc;
+use std::time::Instant;
+
+use rayon::prelude::*;
+
+use crate::assembly::{Assembly, AttachKind, GroundSearch};
+use crate::camera::Camera;
+use crate::component::Component;
+use crate::error::{BrickGeomError, Result};
+use crate::lattice::Pose;
+use crate::library::part;
+use crate::mesh::Mesh;
+use crate::raster::{render, silhouette_iou, MaskTarget, RenderItem, RenderOptions};
+
+/// One detected instance of a component type.
+#[derive(Debug, Clone)]
+pub struct Detection {
+    /// Keypoint in pixels.
+    pub keypoint: [f64; 2],
+    /// Detector confidence (higher is better).
+    pub score: f32,
+    /// Probabilities of the 7 symmetry-aware rotation classes (ignored for submodules).
+    pub rotation: Option<[f32; 7]>,
+    /// Predicted instance mask, `width * height` row major (used for submodule rotation and to
+    /// resolve depth ambiguities).
+    pub mask: Option<Vec<bool>>,
+}
+
+/// The detections of one component type of a step.
+#[derive(Debug, Clone)]
+pub struct TypeDetections {
+    pub component: Arc<Component>,
+    /// Number of instances the manual says this step adds.
+    pub count: usize,
+    pub detections: Vec<Detection>,
+}
+
+/// Settings of stage 2.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct InferOptions {
+    /// Largest keypoint reprojection error (pixels) of an accepted placement.
+    pub max_error_px: f64,
+    /// Placements this close (pixels) to the best are ambiguous and compared by mask/depth.
+    pub tie_px: f64,
+}
+
+impl Default for InferOptions {
+    fn default() -> Self {
+        InferOptions {
+            max_error_px: 6.0,
+            tie_px: 1.0,
+        }
+    }
+}
+
+/// The outcome for one instance.
+#[derive(Debug, Clone, PartialEq)]
+pub struct InstancePrediction {
+    /// Index into the step's types.
+    pub type_index: usize,
+    /// Index of the detection used (None when the type had fewer detections than instances).
+    pub detection: Option<usize>,
+    pub pose: Option<Pose>,
+    pub attach: Option<AttachKind>,
+    /// Keypoint reprojection error (pixels) of the chosen pose.
+    pub error_px: f64,
+    /// Mask IoU of the chosen pose, when a mask was used.
+    pub iou: Option<f64>,
+    /// Why no pose was found.
+    pub failure: Option<String>,
+}
+
+/// The 7-way symmetry-aware rotation class of a yaw (supplementary): 0 for 4-fold symmetric
+/// parts; 1 + yaw mod 2 for 2-fold; 3 + yaw otherwise.
+pub fn rotation_class(symmetry: u8, yaw: u8) -> u8 {
+    match symmetry {
+        4 => 0,
+        2 => 1 + yaw % 2,
+        _ => 3 + yaw % 4,
+    }
+}
+
+/// Yaws to try for a component, most probable first, one per symmetry-equivalent group.
+pub fn yaws_from_classes(symmetry: u8, probs: Option<&[f32; 7]>) -> Vec<u8> {
+    let Some(p) = probs else {
+        return match symmetry {
+            4 => vec![0],
+            2 => vec![0, 1],
+            _ => vec![0, 1, 2, 3],
+        };
+    };
+    let mut scored: Vec<(f32, u8)> = match symmetry {
+        4 => vec![(1.0, 0)],
+        2 => vec![(p[1], 0), (p[2], 1)],
+        _ => (0..4u8).map(|y| (p[3 + y as usize], y)).collect(),
+    };
+    scored.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
+    scored.into_iter().map(|(_, y)| y).collect()
+}
+
+/// A scored candidate placement.
+#[derive(Debug, Clone, Copy)]
+struct Candidate {
+    pose: Pose,
+    attach: AttachKind,
+    error_px: f64,
+    depth: f64,
+}
+
+/// Per-step geometry shared by all queries: the camera's projection.
+struct Projector {
+    /// Pixel matrix (2x4) and view row.
+    m: [[f64; 4]; 2],
+    view: [f64; 3],
+}
+
+impl Projector {
+    fn new(camera: &Camera, w: u32, h: u32) -> Self {
+        let pm = camera.pixel_matrix(w, h);
+        let r = camera.rotation();
+        Projector {
+            m: [
+                [pm[(0, 0)], pm[(0, 1)], pm[(0, 2)], pm[(0, 3)]],
+                [pm[(1, 0)], pm[(1, 1)], pm[(1, 2)], pm[(1, 3)]],
+            ],
+            view: [r[(2, 0)], r[(2, 1)], r[(2, 2)]],
+        }
+    }
+
+    fn pixel(&self, p: [f64; 3]) -> [f64; 2] {
+        let f = |r: &[f64; 4]| r[0] * p[0] + r[1] * p[1] + r[2] * p[2] + r[3];
+        [f(&self.m[0]), f(&self.m[1])]
+    }
+
+    fn depth(&self, p: [f64; 3]) -> f64 {
+        self.view[0] * p[0] + self.view[1] * p[1] + self.view[2] * p[2]
+    }
+}
+
+const UNIT: [f64; 3] = [10.0, 8.0, 10.0];
+
+/// Valid placements of `comp` at `yaw` whose anchor point (component frame, LDU) projects
+/// within `max_err` pixels of `k`.
+#[allow(clippy::too_many_arguments)]
+fn ray_candidates(
+    asm: &Assembly,
+    comp: &Component,
+    yaw: u8,
+    anchor: [f32; 3],
+    k: [f64; 2],
+    proj: &Projector,
+    max_err: f64,
+) -> Vec<Candidate> {
+    let rot = Pose::new(yaw, [0, 0, 0]);
+    let a = rot.apply_ldu(anchor).map(|v| v as f64);
+    let base = proj.pixel(a);
+    // pixel(t) = base + J t, J = M[:, :3] * diag(UNIT)
+    let j = [
+        [
+            proj.m[0][0] * UNIT[0],
+            proj.m[0][1] * UNIT[1],
+            proj.m[0][2] * UNIT[2],
+        ],
+        [
+            proj.m[1][0] * UNIT[0],
+            proj.m[1][1] * UNIT[1],
+            proj.m[1][2] * UNIT[2],
+        ],
+    ];
+    // Iterate over the axis whose complementary 2x2 system is best conditioned.
+    let det = |p: usize, q: usize| j[0][p] * j[1][q] - j[0][q] * j[1][p];
+    let axes = [(1usize, 0usize, 2usize), (0, 1, 2), (2, 0, 1)];
+    let (it, p, q) = axes
+        .into_iter()
+        .max_by(|x, y| det(x.1, x.2).abs().total_cmp(&det(y.1, y.2).abs()))
+        .expect("three axes");
+    let d = det(p, q);
+    if d.abs() < 1e-12 {
+        return Vec::new();
+    }
+    // Range of the iterated coordinate: the assembly's bounds grown by the component's size.
+    let (lo, hi) = asm.bounds().unwrap_or(([0; 3], [0; 3]));
+    let cv: Vec<[i32; 3]> = comp.voxels.iter().map(|&v| rot.apply_cell(v)).collect();
+    let cmin = cv.iter().fold([i32::MAX; 3], |m, v| {
+        [m[0].min(v[0]), m[1].min(v[1]), m[2].min(v[2])]
+    });
+    let cmax = cv.iter().fold([i32::MIN; 3], |m, v| {
+        [m[0].max(v[0]), m[1].max(v[1]), m[2].max(v[2])]
+    });
+    let (r0, r1) = if it == 1 {
+        // heights: from standing on the ground up to resting on top of everything
+        (-cmin[1], hi[1] + 1 - cmin[1] + 1)
+    } else {
+        (lo[it] - cmax[it] - 2, hi[it] - cmin[it] + 2)
+    };
+    let mut poses = Vec::new();
+    for v in r0..=r1 {
+        // Solve for the other two coordinates: J[:, p] x + J[:, q] y = k - base - J[:, it] v.
+        let rhs = [
+            k[0] - base[0] - j[0][it] * v as f64,
+            k[1] - base[1] - j[1][it] * v as f64,
+        ];
+        let xp = (rhs[0] * j[1][q] - rhs[1] * j[0][q]) / d;
+        let xq = (j[0][p] * rhs[1] - j[1][p] * rhs[0]) / d;
+        // A window of lattice points around the exact solution; the reprojection filter below
+        // keeps the ones within the error bound.
+        for dp in -2..=2 {
+            for dq in -2..=2 {
+                let mut t = [0i32; 3];
+                t[it] = v;
+                t[p] = xp.round() as i32 + dp;
+                t[q] = xq.round() as i32 + dq;
+                poses.push(Pose::new(yaw, t));
+            }
+        }
+    }
+    let checks = asm.check_many(comp, &poses);
+    poses
+        .into_iter()
+        .zip(checks)
+        .filter_map(|(pose, r)| {
+            let attach = r.ok()?;
+            let world = [
+                a[0] + pose.t[0] as f64 * UNIT[0],
+                a[1] + pose.t[1] as f64 * UNIT[1],
+                a[2] + pose.t[2] as f64 * UNIT[2],
+            ];
+            let px = proj.pixel(world);
+            let err = ((px[0] - k[0]).powi(2) + (px[1] - k[1]).powi(2)).sqrt();
+            (err <= max_err).then_some(Candidate {
+                pose,
+                attach,
+                error_px: err,
+                depth: proj.depth(world),
+            })
+        })
+        .collect()
+}
+
+/// Meshes of a component's bricks (library meshes) with their poses in the component frame.
+fn brick_meshes(comp: &Component) -> Vec<(&'static Mesh, Pose)> {
+    comp.bricks
+        .iter()
+        .map(|b| (&part(b.part).expect("library part").mesh, b.pose))
+        .collect()
+}
+
+/// Mask IoU of a component placed at `pose` against a target.
+fn pose_iou(comp: &Component, pose: &Pose, camera: &Camera, target: &MaskTarget) -> Result<f64> {
+    let meshes: Vec<(&Mesh, Pose)> = brick_meshes(comp)
+        .into_iter()
+        .map(|(m, p)| (m, pose.compose(&p)))
+        .collect();
+    Ok(silhouette_iou(&meshes, camera, target)?.0)
+}
+
+/// Depth image of an assembly (`f32::INFINITY` where empty), built-in meshes.
+fn base_depth(asm: &Assembly, camera: &Camera, w: u32, h: u32) -> Result<Vec<f32>> {
+    let mut items = Vec::new();
+    for (id, inst) in asm.instances() {
+        for (mesh, p) in brick_meshes(&inst.component) {
+            items.push(RenderItem {
+                mesh,
+                pose: inst.pose.compose(&p),
+                colour: [0, 0, 0],
+                id,
+            });
+        }
+    }
+    let opts = RenderOptions {
+        line_px: 0.0,
+        ..RenderOptions::new(w, h)
+    };
+    Ok(render(&items, camera, &opts)?.depth)
+}
+
+/// The best placement of one detection against the current assembly.
+#[allow(clippy::too_many_arguments)]
+fn best_placement(
+    asm: &Assembly,
+    comp: &Component,
+    det: &Detection,
+    camera: &Camera,
+    proj: &Projector,
+    target: Option<&MaskTarget>,
+    opts: &InferOptions,
+) -> Result<Option<(Candidate, Option<f64>)>> {
+    if comp.is_submodule {
+        // Rotation by synthesis: every yaw x every topmost brick as the anchor.
+        let mut best: Option<(f64, f64, Candidate)> = None; // (iou, -error, cand)
+        for yaw in 0..4u8 {
+            for kp in comp.keypoints() {
+                let cands =
+                    ray_candidates(asm, comp, yaw, kp, det.keypoint, proj, opts.max_error_px);
+                for c in resolve_ties(comp, cands, camera, target, opts)?
+                    .into_iter()
+                    .take(1)
+                {
+                    let (cand, iou) = c;
+                    let key = (iou.unwrap_or(0.0), -cand.error_px);
+                    if best.is_none_or(|(bi, be, _)| key > (bi, be)) {
+                        best = Some((key.0, key.1, cand));
+                    }
+                }
+            }
+        }
+        return Ok(best.map(|(iou, _, c)| (c, target.map(|_| iou))));
+    }
+    let anchor = comp.keypoints()[0];
+    for yaw in yaws_from_classes(comp.symmetry, det.rotation.as_ref()) {
+        let cands = ray_candidates(
+            asm,
+            comp,
+            yaw,
+            anchor,
+            det.keypoint,
+            proj,
+            opts.max_error_px,
+        );
+        if let Some(best) = resolve_ties(comp, cands, camera, target, opts)?
+            .into_iter()
+            .next()
+        {
+            return Ok(Some(best));
+        }
+    }
+    Ok(None)
+}
+
+/// Order candidates: smallest reprojection error; among those within `tie_px` of it, the best
+/// mask IoU when there is a mask, else nearest the camera.
+fn resolve_ties(
+    comp: &Component,
+    mut cands: Vec<Candidate>,
+    camera: &Camera,
+    target: Option<&MaskTarget>,
+    opts: &InferOptions,
+) -> Result<Vec<(Candidate, Option<f64>)>> {
+    cands.sort_by(|a, b| a.error_px.total_cmp(&b.error_px).then(a.pose.cmp(&b.pose)));
+    let Some(first) = cands.first().copied() else {
+        return Ok(Vec::new());
+    };
+    let mut tied: Vec<(Candidate, Option<f64>)> = cands
+        .iter()
+        .filter(|c| c.error_px <= first.error_px + opts.tie_px)
+        .map(|c| -> Result<_> {
+            let iou = match target {
+                Some(t) => Some(pose_iou(comp, &c.pose, camera, t)?),
+                None => None,
+            };
+            Ok((*c, iou))
+        })
+        .collect::<Result<_>>()?;
+    tied.sort_by(|(a, ia), (b, ib)| {
+        ib.unwrap_or(0.0)
+            .total_cmp(&ia.unwrap_or(0.0))
+            .then(a.depth.total_cmp(&b.depth))
+            .then(a.error_px.total_cmp(&b.error_px))
+            .then(a.pose.cmp(&b.pose))
+    });
+    Ok(tied)
+}
+
+/// Stage 2 for one step: poses for every instance of every component type, placed one after
+/// another on a copy of `base`. Always collision-free; never fails as a whole.
+pub fn infer_step(
+    base: &Assembly,
+    camera: &Camera,
+    width: u32,
+    height: u32,
+    types: &[TypeDetections],
+    opts: &InferOptions,
+) -> Result<Vec<InstancePrediction>> {
+    camera.validate()?;
+    if width == 0 || height == 0 || width > 8192 || height > 8192 {
+        return Err(BrickGeomError::InvalidArgument(format!(
+            "image size must be 1..=8192 pixels per side, got {width}x{height}"
+        )));
+    }
+    let n_px = width as usize * height as usize;
+    let mut out = Vec::new();
+    // The detections to use: the `count` most confident of each type; missing ones fail.
+    let mut pending: Vec<(usize, usize)> = Vec::new();
+    for (ti, t) in types.iter().enumerate() {
+        for (di, d) in t.detections.iter().enumerate() {
+            if !(d.keypoint[0].is_finite() && d.keypoint[1].is_finite()) {
+                return Err(BrickGeomError::InvalidArgument(format!(
+                    "type {ti} detection {di}: keypoint {:?} is not finite",
+                    d.keypoint
+                )));
+            }
+            if let Some(m) = &d.mask {
+                if m.len() != n_px {
+                    return Err(BrickGeomError::InvalidArgument(format!(
+                        "type {ti} detection {di}: mask has {} pixels, the image {width}x{height} has {n_px}",
+                        m.len()
+                    )));
+                }
+            }
+        }
+        let mut order: Vec<usize> = (0..t.detections.len()).collect();
+        order.sort_by(|&a, &b| {
+            t.detections[b]
+                .score
+                .total_cmp(&t.detections[a].score)
+                .then(a.cmp(&b))
+        });
+        for &di in order.iter().take(t.count) {
+            pending.push((ti, di));
+        }
+        for _ in t.detections.len()..t.count {
+            out.push(InstancePrediction {
+                type_index: ti,
+                detection: None,
+                pose: None,
+                attach: None,
+                error_px: f64::INFINITY,
+                iou: None,
+                failure: Some("fewer detections than instances".into()),
+            });
+        }
+    }
+    let proj = Projector::new(camera, width, height);
+    let mut asm = base.clone();
+    let uses_masks = pending
+        .iter()
+        .any(|&(ti, di)| types[ti].detections[di].mask.is_some());
+    while !pending.is_empty() {
+        let depth = if uses_masks {
+            Some(base_depth(&asm, camera, width, height)?)
+        } else {
+            None
+        };
+        // best placement of every pending detection against the current shape
+        let found: Vec<Option<(Candidate, Option<f64>)>> = pending
+            .par_iter()
+            .map(|&(ti, di)| -> Result<_> {
+                let det = &types[ti].detections[di];
+                let target = match (&det.mask, &depth) {
+                    (Some(m), Some(d)) => {
+                        Some(MaskTarget::new(width, height, d.clone(), m.clone())?)
+                    }
+                    _ => None,
+                };
+                best_placement(
+                    &asm,
+                    &types[ti].component,
+                    det,
+                    camera,
+                    &proj,
+                    target.as_ref(),
+                    opts,
+                )
+            })
+            .collect::<Result<_>>()?;
+        // place the one that fits best (smallest reprojection error); others wait for it
+        let pick = found
+            .iter()
+            .enumerate()
+            .filter_map(|(i, f)| f.as_ref().map(|(c, _)| (c.error_px, i)))
+            .min_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        let Some((_, i)) = pick else {
+            for (ti, di) in pending.drain(..) {
+                out.push(InstancePrediction {
+                    type_index: ti,
+                    detection: Some(di),
+                    pose: None,
+                    attach: None,
+                    error_px: f64::INFINITY,
+                    iou: None,
+                    failure: Some(format!(
+                        "no valid placement projects within {} px of the keypoint",
+                        opts.max_error_px
+                    )),
+                });
+            }
+            break;
+        };
+        let (ti, di) = pending.remove(i);
+        let (cand, iou) = found[i].expect("picked a found placement");
+        asm.add(types[ti].component.clone(), cand.pose)?;
+        out.push(InstancePrediction {
+            type_index: ti,
+            detection: Some(di),
+            pose: Some(cand.pose),
+            attach: Some(cand.attach),
+            error_px: cand.error_px,
+            iou,
+            failure: None,
+        });
+    }
+    Ok(out)
+}
+
+/// Pure analysis-by-synthesis (the paper's ablation): for each instance, every valid pose of
+/// its component (4 yaws x every stud/anti-stud/ground placement) is rasterized over the
+/// current shape and scored by IoU with the instance's mask; the best is placed. Components are
+/// placed one after another in the order given; each has a time limit, past which the best pose
+/// found so far is used (and the result says it hit the limit).
+pub fn abys_step(
+    base: &Assembly,
+    camera: &Camera,
+    width: u32,
+    height: u32,
+    instances: &[(Arc<Component>, Vec<bool>)],
+    time_limit_s: f64,
+) -> Result<Vec<(Option<Pose>, f64, bool)>> {
+    camera.validate()?;
+    let n_px = width as usize * height as usize;
+    let mut asm = base.clone();
+    let mut out = Vec::new();
+    for (k, (comp, mask)) in instances.iter().enumerate() {
+        if mask.len() != n_px {
+            return Err(BrickGeomError::InvalidArgument(format!(
+                "instance {k}: mask has {} pixels, the image {width}x{height} has {n_px}",
+                mask.len()
+            )));
+        }
+        let start = Instant::now();
+        let depth = base_depth(&asm, camera, width, height)?;
+        let target = MaskTarget::new(width, height, depth, mask.clone())?;
+        let mut best: Option<(f64, Pose)> = None;
+        let mut timed_out = false;
+        for yaw in 0..4u8 {
+            let ground = if asm.is_empty() {
+                GroundSearch::Region {
+                    x0: -40,
+                    x1: 40,
+                    z0: -40,
+                    z1: 40,
+                }
+            } else {
+                GroundSearch::Auto
+            };
+            let cands = asm.candidates(comp, yaw, ground)?;
+            // Score in parallel, in chunks so the time limit is checked between chunks.
+            for chunk in cands.chunks(256) {
+                if start.elapsed().as_secs_f64() > time_limit_s {
+                    timed_out = true;
+                    break;
+                }
+                let scores: Vec<Result<(f64, Pose)>> = chunk
+                    .par_iter()
+                    .map(|c| Ok((pose_iou(comp, &c.pose, camera, &target)?, c.pose)))
+                    .collect();
+                for s in scores {
+                    let (iou, pose) = s?;
+                    if best.is_none_or(|(b, bp)| iou > b || (iou == b && pose < bp)) {
+                        best = Some((iou, pose));
+                    }
+                }
+            }
+        }
+        if let Some((_, pose)) = best {
+            asm.add(comp.clone(), pose)?;
+        }
+        out.push((best.map(|b| b.1), best.map_or(0.0, |b| b.0), timed_out));
+    }
+    Ok(out)
+}
