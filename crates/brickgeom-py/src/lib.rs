@@ -8,7 +8,9 @@
 
 mod errors;
 mod geom;
+mod infer;
 mod ldraw;
+mod metrics;
 mod render;
 mod synth;
 
@@ -18,7 +20,9 @@ use pyo3::prelude::*;
 fn _brickgeom(m: &Bound<'_, PyModule>) -> PyResult<()> {
     errors::register(m)?;
     geom::register(m)?;
+    infer::register(m)?;
     ldraw::register(m)?;
+    metrics::register(m)?;
     render::register(m)?;
     synth::register(m)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
