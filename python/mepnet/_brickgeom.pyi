@@ -160,3 +160,23 @@ def render_plan(
 # Evaluation metrics (wrapped by mepnet.metrics)
 def chamfer_distance(a: npt.NDArray[np.float32], b: npt.NDArray[np.float32]) -> float: ...
 def linear_assignment(cost: npt.NDArray[np.float64]) -> tuple[list[int], list[int]]: ...
+
+# Stage 2 (wrapped by mepnet.predictors / mepnet.eval)
+def infer_step(
+    base: Assembly,
+    camera: Camera,
+    width: int,
+    height: int,
+    types: list[dict[str, Any]],
+    max_error_px: float = 6.0,
+    tie_px: float = 2.5,
+) -> list[dict[str, Any]]: ...
+def abys_step(
+    base: Assembly,
+    camera: Camera,
+    width: int,
+    height: int,
+    instances: list[tuple[Component, npt.NDArray[np.bool_]]],
+    time_limit_s: float = 60.0,
+) -> list[tuple[tuple[int, _Int3] | None, float, bool]]: ...
+def rotation_class(symmetry: int, yaw: int) -> int: ...

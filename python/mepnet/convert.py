@@ -18,7 +18,7 @@ import numpy as np
 
 from mepnet import _brickgeom as _bg
 from mepnet.data import write_manual
-from mepnet.geom import BrickGeomError
+from mepnet.geom import BrickGeomError, rotate_lattice
 from mepnet.ldraw import LDrawFile
 
 #: Library parts eligible as substitutes: rectangular bricks, plates and tiles.
@@ -278,7 +278,7 @@ def convert(
             (
                 part,
                 (yaw + byaw) % 4,
-                tuple(int(v) for v in (_rotate(np.array(bt), yaw) + np.array(t))),
+                rotate_lattice(bt, yaw, t),
                 col if bcol == 16 else bcol,
             )
             for c, _, yaw, t, col in (placed[i] for i in sorted(keep_set))

@@ -27,6 +27,17 @@ from mepnet._brickgeom import (
     resolve_part,
 )
 
+
+def rotate_lattice(
+    p: tuple[int, int, int] | list[int], yaw: int, t: tuple[int, int, int] | list[int] = (0, 0, 0)
+) -> tuple[int, int, int]:
+    """A lattice point turned by ``yaw`` quarter turns about +y, then moved by ``t``:
+    yaw 1 maps (x, y, z) to (z, y, -x) (as the Rust core's ``Pose``)."""
+    x, y, z = p
+    r = [(x, y, z), (z, y, -x), (-x, y, -z), (-z, y, x)][yaw % 4]
+    return (int(r[0] + t[0]), int(r[1] + t[1]), int(r[2] + t[2]))
+
+
 #: Attach-kind codes returned by :meth:`Assembly.candidates`.
 ATTACH_KINDS = ("on_studs", "from_below", "ground")
 
@@ -51,4 +62,5 @@ __all__ = [
     "part_mesh",
     "render",
     "resolve_part",
+    "rotate_lattice",
 ]

@@ -19,7 +19,7 @@ from typing import Any
 
 from mepnet import _brickgeom as _bg
 from mepnet import ldraw
-from mepnet.geom import BrickGeomError
+from mepnet.geom import BrickGeomError, rotate_lattice
 
 
 def bundled_example() -> Path:
@@ -145,11 +145,6 @@ def render_steps(file: ldraw.LDrawFile, checks: list[dict[str, Any]], out: Path,
     return written
 
 
-def _rotate(p: tuple[int, int, int], yaw: int) -> tuple[int, int, int]:
-    x, y, z = p
-    return [(x, y, z), (z, y, -x), (-x, y, -z), (-z, y, x)][yaw % 4]
-
-
 def submodule_component(
     name: str, placed: list[tuple[_bg.Component, int, tuple[int, int, int], int]], lift: int
 ) -> _bg.Component:
@@ -159,9 +154,9 @@ def submodule_component(
     parts, poses, colours = [], [], []
     for comp, yaw, t, col in placed:
         for part, byaw, bt, bcol in comp.bricks:
-            r = _rotate(bt, yaw)
+            r = rotate_lattice(bt, yaw, t)
             parts.append(part)
-            poses.append([(yaw + byaw) % 4, r[0] + t[0], r[1] + t[1] - lift, r[2] + t[2]])
+            poses.append([(yaw + byaw) % 4, r[0], r[1] - lift, r[2]])
             colours.append(col if bcol == 16 else bcol)
     return _bg.Component.from_bricks(name, parts, np.array(poses, dtype=np.int64), colours)
 

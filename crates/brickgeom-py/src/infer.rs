@@ -39,7 +39,7 @@ fn rotation_class_py(symmetry: u8, yaw: u8) -> u8 {
 /// Returns one dict per instance: {type, detection, yaw, t, attach, error_px, iou, failure}
 /// (yaw/t/attach None on failure).
 #[pyfunction(name = "infer_step")]
-#[pyo3(signature = (base, camera, width, height, types, max_error_px=6.0, tie_px=1.0))]
+#[pyo3(signature = (base, camera, width, height, types, max_error_px=6.0, tie_px=2.5))]
 #[allow(clippy::too_many_arguments)]
 fn infer_step_py<'py>(
     py: Python<'py>,
@@ -144,7 +144,7 @@ fn abys_step_py<'py>(
     instances: Vec<(Bound<'py, PyComponent>, Bound<'py, PyAny>)>,
     time_limit_s: f64,
 ) -> PyResult<Vec<(Option<(u8, (i32, i32, i32))>, f64, bool)>> {
-    if !(time_limit_s > 0.0) {
+    if time_limit_s.is_nan() || time_limit_s <= 0.0 {
         return Err(PyValueError::new_err(format!(
             "time limit must be positive, got {time_limit_s}"
         )));

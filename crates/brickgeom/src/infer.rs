@@ -71,7 +71,7 @@ impl Default for InferOptions {
     fn default() -> Self {
         InferOptions {
             max_error_px: 6.0,
-            tie_px: 1.0,
+            tie_px: 2.5,
         }
     }
 }
@@ -190,18 +190,24 @@ fn ray_candidates(
             proj.m[1][2] * UNIT[2],
         ],
     ];
-    // Iterate over the axis whose complementary 2x2 system is best conditioned.
+    // Iterate over heights (a bounded range: from the ground to the top of the shape) unless the
+    // camera looks nearly horizontally; then over the better conditioned horizontal axis.
     let det = |p: usize, q: usize| j[0][p] * j[1][q] - j[0][q] * j[1][p];
-    let axes = [(1usize, 0usize, 2usize), (0, 1, 2), (2, 0, 1)];
-    let (it, p, q) = axes
-        .into_iter()
-        .max_by(|x, y| det(x.1, x.2).abs().total_cmp(&det(y.1, y.2).abs()))
-        .expect("three axes");
+    let best = [det(0, 2), det(1, 2), det(0, 1)]
+        .iter()
+        .map(|d| d.abs())
+        .fold(0.0, f64::max);
+    let (it, p, q) = if det(0, 2).abs() >= 0.2 * best {
+        (1usize, 0usize, 2usize)
+    } else if det(1, 2).abs() >= det(0, 1).abs() {
+        (0, 1, 2)
+    } else {
+        (2, 0, 1)
+    };
     let d = det(p, q);
     if d.abs() < 1e-12 {
         return Vec::new();
     }
-    // Range of the iterated coordinate: the assembly's bounds grown by the component's size.
     let (lo, hi) = asm.bounds().unwrap_or(([0; 3], [0; 3]));
     let cv: Vec<[i32; 3]> = comp.voxels.iter().map(|&v| rot.apply_cell(v)).collect();
     let cmin = cv.iter().fold([i32::MAX; 3], |m, v| {
@@ -211,10 +217,11 @@ fn ray_candidates(
         [m[0].max(v[0]), m[1].max(v[1]), m[2].max(v[2])]
     });
     let (r0, r1) = if it == 1 {
-        // heights: from standing on the ground up to resting on top of everything
+        // from standing on the ground up to resting on top of everything
         (-cmin[1], hi[1] + 1 - cmin[1] + 1)
     } else {
-        (lo[it] - cmax[it] - 2, hi[it] - cmin[it] + 2)
+        // horizontally: anywhere the component touches the shape, or on the ground around it
+        (lo[it] - cmax[it] - 64, hi[it] - cmin[it] + 64)
     };
     let mut poses = Vec::new();
     for v in r0..=r1 {

@@ -1,0 +1,380 @@
+"""Evaluation of a predictor on manual folders (synthetic or converted from real models).
+
+    python -m mepnet.eval --data DIR --predictor {oracle,oracle-noisy,abys,mepnet,direct3d}
+                          [--json FILE] [--autoregressive] [--sigma PX]
+
+Metrics (paper §5.1), written as JSON with the keys of DESIGN §8:
+
+- ``component_acc`` / ``step_acc``: exact pose equality on the lattice (rotation modulo the
+  component's symmetry: two poses are equal when they place identical geometry), given the
+  ground-truth base shape and submodules. Within a component type, predictions are matched to
+  ground-truth instances: exact matches first, the rest by Hungarian matching on Chamfer
+  distance. A step is correct when all of its components are.
+- ``component_cd`` / ``step_cd``: Chamfer distance (sum of the two mean squared nearest-point
+  distances) between 10,000 points sampled on the predicted and ground-truth meshes, both
+  scaled so the ground-truth final shape of the build has a bounding-box diagonal of 1,
+  reported x1e5 as the paper does. An exactly correct pose counts 0; an instance the predictor
+  could not place is left out of the CD means and counted in ``n_failures``.
+- ``set_cd`` (with ``--autoregressive``): submodules are built by the predictor first, then the
+  main model step by step on its own predictions; CD between the final predicted and
+  ground-truth shapes (same scaling).
+- ``mtc``: mistakes to complete, the fraction of steps with a wrong prediction given the
+  ground-truth base (averaged over manuals).
+- ``seconds_per_step``: the predictor's wall time per step (detection + stage 2).
+- ``submodule_component_acc`` / ``submodule_component_cd``: the same, over submodule components.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import tempfile
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from mepnet import _brickgeom as _bg
+from mepnet import metrics
+from mepnet.data import (
+    Build,
+    ComponentRef,
+    Manual,
+    ManualFormatError,
+    iter_manual_dirs,
+    load_manual,
+)
+from mepnet.geom import BrickGeomError, rotate_lattice
+from mepnet.predictors import (
+    PREDICTORS,
+    Prediction,
+    Predictor,
+    StepContext,
+    make_predictor,
+    timed_predict,
+)
+
+Placement = tuple[_bg.Component, int, tuple[int, int, int]]
+
+
+def _diag(placements: Sequence[Placement]) -> float:
+    v, _ = metrics.union_mesh(placements)
+    return float(np.linalg.norm(v.max(axis=0) - v.min(axis=0))) or 1.0
+
+
+class Scorer:
+    """Accumulates step results."""
+
+    def __init__(self, cd_points: int):
+        self.cd_points = cd_points
+        self.components = 0
+        self.correct = 0
+        self.steps = 0
+        self.steps_correct = 0
+        self.failures = 0
+        self.comp_cd: list[float] = []
+        self.step_cd: list[float] = []
+        self.sub_components = 0
+        self.sub_correct = 0
+        self.sub_cd: list[float] = []
+        self.seconds: list[float] = []
+
+    def cd(self, pred: Sequence[Placement], gt: Sequence[Placement], scale: float) -> float:
+        pred, gt = _canonical(pred, gt)
+        return metrics.chamfer(
+            metrics.union_mesh(pred), metrics.union_mesh(gt), n=self.cd_points, scale=scale
+        )
+
+    def step(
+        self,
+        preds: list[Prediction],
+        gt: list[tuple[ComponentRef, int, tuple[int, int, int]]],
+        comps: dict[ComponentRef, _bg.Component],
+        scale: float,
+    ) -> bool:
+        """Score one step; returns whether it is entirely correct."""
+        all_ok = True
+        step_pred: list[Placement] = []
+        for ref in dict.fromkeys(r for r, _, _ in gt):
+            comp = comps[ref]
+            g = [(y, t) for r, y, t in gt if r == ref]
+            p = [(x.yaw, x.t) for x in preds if x.component == ref and x.t is not None]
+            self.failures += sum(1 for x in preds if x.component == ref and x.t is None)
+            step_pred += [(comp, y, t) for y, t in p]
+            # exact matches first
+            used_p: set[int] = set()
+            unmatched_g = []
+            for gy, gt_t in g:
+                j = next(
+                    (
+                        j
+                        for j, (py, pt) in enumerate(p)
+                        if j not in used_p and comp.same_placement(gy, gt_t, py, pt)
+                    ),
+                    None,
+                )
+                if j is None:
+                    unmatched_g.append((gy, gt_t))
+                else:
+                    used_p.add(j)
+                    self.comp_cd.append(0.0)
+            ok = len(g) - len(unmatched_g)
+            type_cd = [0.0] * ok
+            rest_p = [p[j] for j in range(len(p)) if j not in used_p]
+            if unmatched_g and rest_p:
+                for i, j in metrics.match_instances(
+                    rest_p, unmatched_g, lambda a, b, c=comp: self.cd([(c, *a)], [(c, *b)], scale)
+                ):
+                    type_cd.append(self.cd([(comp, *rest_p[i])], [(comp, *unmatched_g[j])], scale))
+            self.comp_cd += type_cd
+            self.components += len(g)
+            self.correct += ok
+            if ref.submodule is not None:
+                self.sub_components += len(g)
+                self.sub_correct += ok
+                self.sub_cd += type_cd
+            all_ok &= ok == len(g)
+        gt_pl = [(comps[r], y, t) for r, y, t in gt]
+        self.step_cd.append(
+            0.0 if all_ok else (self.cd(step_pred, gt_pl, scale) if step_pred else float("nan"))
+        )
+        self.steps += 1
+        self.steps_correct += int(all_ok)
+        return all_ok
+
+
+def _canonical(
+    pred: Sequence[Placement], gt: Sequence[Placement]
+) -> tuple[list[Placement], list[Placement]]:
+    """Predicted placements equal to a ground-truth one (modulo symmetry) replaced by it, and
+    both lists in one order, so identical shapes sample identical points (CD exactly 0)."""
+    used: set[int] = set()
+    out = []
+    for c, y, t in pred:
+        j = next(
+            (
+                j
+                for j, (gc, gy, gt_t) in enumerate(gt)
+                if j not in used and gc.name == c.name and c.same_placement(y, t, gy, gt_t)
+            ),
+            None,
+        )
+        if j is None:
+            out.append((c, y, t))
+        else:
+            used.add(j)
+            out.append(gt[j])
+
+    def key(p: Placement) -> tuple[str, int, tuple[int, int, int]]:
+        return (p[0].name, p[1], p[2])
+
+    return sorted(out, key=key), sorted(gt, key=key)
+
+
+def _gt_components(man: Manual) -> dict[ComponentRef, _bg.Component]:
+    comps: dict[ComponentRef, _bg.Component] = {}
+    for b in [man.main] + [s.build for s in man.submodules]:
+        for inst in b.instances:
+            if inst.component not in comps:
+                comps[inst.component] = man.component(inst.component)
+    return comps
+
+
+def _gt_step(build: Build, k: int) -> list[tuple[ComponentRef, int, tuple[int, int, int]]]:
+    return [
+        (build.instances[v.id].component, build.instances[v.id].yaw, build.instances[v.id].t)
+        for v in build.steps[k].views
+    ]
+
+
+def _run_build(
+    predictor: Predictor,
+    build: Build,
+    comps: dict[ComponentRef, _bg.Component],
+    image_size: tuple[int, int],
+    scorer: Scorer | None,
+    autoregressive: bool,
+) -> tuple[list[Placement], int]:
+    """Run a build's steps. With ground-truth bases (scored) or autoregressively (predicted
+    shapes fed forward). Returns the final placements and the number of wrong steps."""
+    gt_all = [(comps[i.component], i.yaw, i.t) for i in build.instances]
+    scale = _diag(gt_all)
+    base = _bg.Assembly()
+    placed: list[Placement] = []
+    wrong = 0
+    for k, step in enumerate(build.steps):
+        ctx = StepContext(
+            step=step, base=base.copy(), components=comps, image_size=image_size, truth=build
+        )
+        preds, dt = timed_predict(predictor, ctx)
+        gt = _gt_step(build, k)
+        if scorer is not None:
+            scorer.seconds.append(dt)
+            wrong += int(not scorer.step(preds, gt, comps, scale))
+        if autoregressive:
+            for p in preds:
+                if p.t is not None:
+                    try:
+                        base.add(comps[p.component], p.yaw, p.t)
+                        placed.append((comps[p.component], p.yaw, p.t))
+                    except BrickGeomError:
+                        pass  # stage 2 never collides; another predictor might
+        else:
+            for ref, y, t in gt:
+                base.add(comps[ref], y, t)
+    return placed, wrong
+
+
+def evaluate(
+    data: str | os.PathLike[str],
+    predictor: Predictor,
+    autoregressive: bool = False,
+    cd_points: int = 10_000,
+    progress: bool = True,
+) -> dict[str, Any]:
+    """Evaluate ``predictor`` on every manual under ``data``; returns the metrics dict."""
+    from tqdm import tqdm
+
+    dirs = list(iter_manual_dirs(data))
+    if not dirs:
+        raise ManualFormatError(f"{data}: no manual folders (manual.json) found")
+    scorer = Scorer(cd_points)
+    mtc, set_cd = [], []
+    for d in tqdm(dirs, unit="manual", disable=not progress, file=sys.stderr):
+        man = load_manual(d)
+        comps = _gt_components(man)
+        wrong = steps = 0
+        for b in [s.build for s in man.submodules] + [man.main]:
+            _, w = _run_build(predictor, b, comps, man.image_size, scorer, autoregressive=False)
+            wrong += w
+            steps += len(b.steps)
+        mtc.append(wrong / max(steps, 1))
+        if autoregressive:
+            pred_comps = dict(comps)
+            for k, s in enumerate(man.submodules):
+                placed, _ = _run_build(
+                    predictor, s.build, pred_comps, man.image_size, None, autoregressive=True
+                )
+                if placed:
+                    bricks = [
+                        (part, (yaw + by) % 4, rotate_lattice(bt, yaw, t), col)
+                        for comp, yaw, t in placed
+                        for part, by, bt, col in comp.bricks
+                    ]
+                    pred_comps[ComponentRef(submodule=k)] = _bg.Component.from_bricks(
+                        s.name,
+                        [b[0] for b in bricks],
+                        np.array([[b[1], *b[2]] for b in bricks], dtype=np.int64),
+                        [b[3] for b in bricks],
+                    )
+            placed, _ = _run_build(
+                predictor, man.main, pred_comps, man.image_size, None, autoregressive=True
+            )
+            gt_final = [(comps[i.component], i.yaw, i.t) for i in man.main.instances]
+            set_cd.append(scorer.cd(placed, gt_final, _diag(gt_final)) if placed else float("nan"))
+
+    def mean(x: list[float]) -> float | None:
+        x = [v for v in x if v == v]
+        return float(np.mean(x)) if x else None
+
+    def cd(x: list[float]) -> float | None:
+        m = mean(x)
+        return None if m is None else m * metrics.CD_REPORT_SCALE
+
+    return {
+        "predictor": predictor.name,
+        "data": str(data),
+        "n_manuals": len(dirs),
+        "n_steps": scorer.steps,
+        "n_components": scorer.components,
+        "n_failures": scorer.failures,
+        "component_acc": scorer.correct / max(scorer.components, 1),
+        "step_acc": scorer.steps_correct / max(scorer.steps, 1),
+        "component_cd": cd(scorer.comp_cd),
+        "step_cd": cd(scorer.step_cd),
+        "set_cd": cd(set_cd) if autoregressive else None,
+        "mtc": float(np.mean(mtc)) if mtc else None,
+        "seconds_per_step": float(np.mean(scorer.seconds)) if scorer.seconds else None,
+        "median_seconds_per_step": float(np.median(scorer.seconds)) if scorer.seconds else None,
+        "n_submodule_components": scorer.sub_components,
+        "submodule_component_acc": scorer.sub_correct / scorer.sub_components
+        if scorer.sub_components
+        else None,
+        "submodule_component_cd": cd(scorer.sub_cd),
+        "cd_points": cd_points,
+        "n_timeouts": getattr(predictor, "timeouts", 0),
+    }
+
+
+def format_table(rows: list[dict[str, Any]]) -> str:
+    """Rows in the layout of the paper's Table 1."""
+
+    def f(v: Any, pct: bool = False) -> str:
+        if v is None:
+            return "-"
+        return f"{100 * v:.2f}" if pct else f"{v:.2f}"
+
+    head = (
+        f"{'':14s} {'Pose Acc (%)':^17s} {'CD (x1e5)':^17s} {'Setwise':^17s}\n"
+        f"{'Method':14s} {'Comp.':>8s} {'Step':>8s} {'Comp.':>8s} {'Step':>8s} {'CD':>8s} {'MTC':>8s} {'s/step':>8s}"
+    )
+    lines = [head]
+    for r in rows:
+        lines.append(
+            f"{r['predictor']:14s} {f(r['component_acc'], True):>8s} {f(r['step_acc'], True):>8s} "
+            f"{f(r['component_cd']):>8s} {f(r['step_cd']):>8s} {f(r['set_cd']):>8s} "
+            f"{f(r['mtc'], True):>8s} {r['seconds_per_step']:>8.4f}"
+        )
+        if r["n_submodule_components"]:
+            lines.append(
+                f"{'  submodules':14s} {f(r['submodule_component_acc'], True):>8s} {'':>8s} "
+                f"{f(r['submodule_component_cd']):>8s}"
+            )
+    lines.append(
+        f"({rows[0]['n_manuals']} manuals, {rows[0]['n_steps']} steps, {rows[0]['n_components']} components, "
+        f"{rows[0]['n_failures']} not placed; MTC in % of steps)"
+    )
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point; returns the exit status (2 on bad input, with one line on stderr)."""
+    ap = argparse.ArgumentParser(prog="python -m mepnet.eval", description=__doc__.splitlines()[0])
+    ap.add_argument("--data", required=True, help="a manual folder, or a folder of manual folders")
+    ap.add_argument("--predictor", required=True, choices=PREDICTORS)
+    ap.add_argument("--json", help="write the metrics to this JSON file")
+    ap.add_argument(
+        "--autoregressive", action="store_true", help="also run setwise (predictions fed forward)"
+    )
+    ap.add_argument("--sigma", type=float, default=1.0, help="keypoint noise (px) for oracle-noisy")
+    ap.add_argument("--seed", type=int, default=0, help="noise seed for oracle-noisy")
+    ap.add_argument("--time-limit", type=float, default=60.0, help="abys: seconds per component")
+    ap.add_argument("--cd-points", type=int, default=10_000, help="points sampled per surface")
+    ap.add_argument("--no-progress", action="store_true")
+    args = ap.parse_args(argv)
+    try:
+        if not Path(args.data).is_dir():
+            raise ManualFormatError(f"{args.data}: not a folder")
+        if args.sigma < 0 or args.cd_points < 1 or args.time_limit <= 0:
+            raise ValueError("--sigma must be >= 0, --cd-points >= 1, --time-limit > 0")
+        predictor = make_predictor(args.predictor, args.sigma, args.seed, args.time_limit)
+        result = evaluate(
+            args.data, predictor, args.autoregressive, args.cd_points, not args.no_progress
+        )
+    except (BrickGeomError, ManualFormatError, ValueError) as e:
+        print(f"mepnet.eval: error: {e}", file=sys.stderr)
+        return 2
+    print(format_table([result]))
+    if args.json:
+        d = os.path.dirname(os.path.abspath(args.json)) or "."
+        with tempfile.NamedTemporaryFile("w", dir=d, delete=False, suffix=".tmp") as f:
+            json.dump(result, f, indent=1)
+        os.replace(f.name, args.json)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

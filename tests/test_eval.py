@@ -1,0 +1,183 @@
+"""python -m mepnet.eval and stage 2 through the binding: metrics, predictors, bad input."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from mepnet import _brickgeom as _bg
+from mepnet.eval import evaluate
+from mepnet.predictors import AbysPredictor, OraclePredictor, make_predictor
+
+SHARED = Path(__file__).resolve().parents[2] / "shared"
+
+
+@pytest.fixture(scope="module")
+def manuals(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("evaldata")
+    r = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "mepnet.synth",
+            "--no-progress",
+            "--out",
+            str(out),
+            "--manuals",
+            "3",
+            "--seed",
+            "777",
+        ],
+        capture_output=True,
+        text=True,
+    )
+    assert r.returncode == 0, r.stderr
+    return out
+
+
+def run_eval(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "mepnet.eval", "--no-progress", *args],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+
+
+def test_oracle_is_exact_and_json_has_the_contract_keys(manuals: Path, tmp_path: Path):
+    out = tmp_path / "m.json"
+    r = run_eval(
+        "--data",
+        str(manuals),
+        "--predictor",
+        "oracle",
+        "--json",
+        str(out),
+        "--autoregressive",
+        "--cd-points",
+        "2000",
+    )
+    assert r.returncode == 0, r.stderr
+    assert "Pose Acc" in r.stdout and "oracle" in r.stdout
+    m = json.loads(out.read_text())
+    for key in (
+        "component_acc",
+        "step_acc",
+        "component_cd",
+        "step_cd",
+        "set_cd",
+        "mtc",
+        "seconds_per_step",
+        "n_components",
+        "n_steps",
+    ):
+        assert key in m
+    assert m["component_acc"] >= 0.995 and m["step_acc"] >= 0.99
+    # exact predictions fed forward rebuild the exact shape
+    assert m["set_cd"] == pytest.approx(0.0, abs=1e-9)
+    assert m["n_steps"] > 20 and m["n_components"] >= m["n_steps"]
+
+
+def test_noise_costs_accuracy_and_cd_grows(manuals: Path):
+    exact = evaluate(manuals, OraclePredictor(0.0), cd_points=2000, progress=False)
+    noisy = evaluate(manuals, OraclePredictor(4.0, seed=1), cd_points=2000, progress=False)
+    assert noisy["component_acc"] < exact["component_acc"]
+    assert noisy["component_cd"] > exact["component_cd"] == 0.0
+    assert 0.0 < noisy["mtc"] <= 1.0
+
+
+def test_abys_finds_poses_within_its_limit(manuals: Path):
+    one = sorted(manuals.iterdir())[0]
+    p = AbysPredictor(time_limit_s=60.0)
+    m = evaluate(one, p, cd_points=2000, progress=False)
+    assert m["n_timeouts"] == 0
+    assert m["component_acc"] > 0.8
+
+
+def test_bad_input_exits_2(tmp_path: Path, manuals: Path):
+    cases = [
+        (["--data", str(tmp_path / "missing"), "--predictor", "oracle"], "not a folder"),
+        (["--data", str(tmp_path), "--predictor", "oracle"], "no manual folders"),
+        (["--data", str(manuals), "--predictor", "mepnet"], "trained detector"),
+        (["--data", str(manuals), "--predictor", "oracle-noisy", "--sigma", "-1"], "--sigma"),
+    ]
+    for args, msg in cases:
+        r = run_eval(*args)
+        assert r.returncode == 2, args
+        assert msg in r.stderr and "Traceback" not in r.stderr
+    with pytest.raises(ValueError, match="unknown predictor"):
+        make_predictor("nope")
+
+
+def test_stage2_binding_checks_its_input():
+    asm = _bg.Assembly()
+    asm.add(_bg.Component.primitive("3001"), 0, (0, 3, 0))
+    cam = _bg.Camera(30.0, 225.0, 0.0, 0.01)
+    comp = _bg.Component.primitive("3003")
+    det = {"keypoint": (128.0, 100.0), "score": 1.0, "rotation": None, "mask": None}
+    with pytest.raises(ValueError, match=r"mask has shape \[2, 2\]"):
+        _bg.infer_step(
+            asm,
+            cam,
+            64,
+            64,
+            [
+                {
+                    "component": comp,
+                    "count": 1,
+                    "detections": [{**det, "mask": np.zeros((2, 2), bool)}],
+                }
+            ],
+        )
+    with pytest.raises(_bg.InvalidArgumentError, match="not finite"):
+        _bg.infer_step(
+            asm,
+            cam,
+            64,
+            64,
+            [
+                {
+                    "component": comp,
+                    "count": 1,
+                    "detections": [{**det, "keypoint": (float("nan"), 1.0)}],
+                }
+            ],
+        )
+    with pytest.raises(ValueError, match="rotation must be 7"):
+        _bg.infer_step(
+            asm,
+            cam,
+            64,
+            64,
+            [{"component": comp, "count": 1, "detections": [{**det, "rotation": [1.0, 0.0]}]}],
+        )
+    with pytest.raises(ValueError, match="absurd"):
+        _bg.infer_step(asm, cam, 64, 64, [{"component": comp, "count": 10**6, "detections": []}])
+    # zero instances: nothing to do; more instances than detections: failures, not a crash
+    assert (
+        _bg.infer_step(asm, cam, 64, 64, [{"component": comp, "count": 0, "detections": [det]}])
+        == []
+    )
+    out = _bg.infer_step(asm, cam, 64, 64, [{"component": comp, "count": 2, "detections": []}])
+    assert [o["failure"] for o in out] == ["fewer detections than instances"] * 2
+    with pytest.raises(_bg.InvalidArgumentError, match="image size"):
+        _bg.infer_step(asm, cam, 0, 64, [])
+    with pytest.raises(ValueError, match="time limit"):
+        _bg.abys_step(asm, cam, 64, 64, [], 0.0)
+
+
+@pytest.mark.skipif(not (SHARED / "real").is_dir(), reason=f"real models not found under {SHARED}")
+def test_eval_runs_on_a_converted_real_model(tmp_path: Path):
+    from mepnet import ldraw
+    from mepnet.convert import convert
+
+    f = ldraw.read(SHARED / "real" / "models" / "4096 - Micro Wheels - QB 4WD.mpd")
+    convert(f, tmp_path / "real", ldraw_dir=str(SHARED / "ldraw"), size=256)
+    m = evaluate(tmp_path / "real", OraclePredictor(0.0), cd_points=2000, progress=False)
+    assert m["n_steps"] > 0 and m["n_components"] > 0
+    # parts resting on dropped parts cannot be placed by any connection-based method; the rest is
+    assert m["component_acc"] > 0.5
