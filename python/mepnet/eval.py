@@ -81,6 +81,8 @@ class Scorer:
         self.sub_correct = 0
         self.sub_cd: list[float] = []
         self.seconds: list[float] = []
+        self.supported = 0
+        self.supported_correct = 0
 
     def cd(self, pred: Sequence[Placement], gt: Sequence[Placement], scale: float) -> float:
         pred, gt = _canonical(pred, gt)
@@ -94,9 +96,24 @@ class Scorer:
         gt: list[tuple[ComponentRef, int, tuple[int, int, int]]],
         comps: dict[ComponentRef, _bg.Component],
         scale: float,
+        supported: list[bool] | None = None,
     ) -> bool:
-        """Score one step; returns whether it is entirely correct."""
+        """Score one step; returns whether it is entirely correct. ``supported`` flags, per
+        ground-truth instance, whether it is connected to the base (converted real models keep
+        parts that rest on dropped ones; no connection-based method can place those)."""
         all_ok = True
+        if supported is not None:
+            for (ref, y, t), sup in zip(gt, supported, strict=True):
+                if sup:
+                    self.supported += 1
+                    self.supported_correct += int(
+                        any(
+                            x.component == ref
+                            and x.t is not None
+                            and comps[ref].same_placement(y, t, x.yaw, x.t)
+                            for x in preds
+                        )
+                    )
         step_pred: list[Placement] = []
         for ref in dict.fromkeys(r for r, _, _ in gt):
             comp = comps[ref]
@@ -213,7 +230,8 @@ def _run_build(
         gt = _gt_step(build, k)
         if scorer is not None:
             scorer.seconds.append(dt)
-            wrong += int(not scorer.step(preds, gt, comps, scale))
+            supported = [v.attach != "unsupported" for v in step.views]
+            wrong += int(not scorer.step(preds, gt, comps, scale, supported))
         if autoregressive:
             for p in preds:
                 if p.t is not None:
@@ -306,6 +324,10 @@ def evaluate(
         "submodule_component_cd": cd(scorer.sub_cd),
         "cd_points": cd_points,
         "n_timeouts": getattr(predictor, "timeouts", 0),
+        "n_unsupported": scorer.components - scorer.supported,
+        "supported_component_acc": scorer.supported_correct / scorer.supported
+        if scorer.supported
+        else None,
     }
 
 
