@@ -18,7 +18,7 @@ import numpy as np
 
 from mepnet import _brickgeom as _bg
 from mepnet.data import write_manual
-from mepnet.geom import BrickGeomError, rotate_lattice
+from mepnet.geom import BrickGeomError, manual_camera, rotate_lattice
 from mepnet.ldraw import LDrawFile
 
 #: Library parts eligible as substitutes: rectangular bricks, plates and tiles.
@@ -115,19 +115,6 @@ class Substitutes:
             None,
             f"no library part with its footprint and height ({sx:.0f}x{sy:.0f}x{sz:.0f} LDU)",
         )
-
-
-def _camera_for(asm: _bg.Assembly) -> _bg.Camera:
-    lo, hi = asm.bounds()
-    corners = np.array(
-        [
-            [x * 10.0, y * 8.0, z * 10.0]
-            for x in (lo[0], hi[0] + 1)
-            for y in (lo[1], hi[1] + 1)
-            for z in (lo[2], hi[2] + 1)
-        ]
-    )
-    return _bg.Camera(30.0, 225.0).fitted(corners, 0.85)
 
 
 def convert(
@@ -267,7 +254,7 @@ def convert(
             for i in st:
                 c, _, yaw, t, col = placed[i]
                 asm.add(c, yaw, t, col)
-            cameras.append(_camera_for(asm))
+            cameras.append(manual_camera(asm))
         build = _bg.render_plan(placed, steps, cameras, size, supersample, ldraw_dir)
         if m == root:
             main_build = build

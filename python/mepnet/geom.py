@@ -38,6 +38,32 @@ def rotate_lattice(
     return (int(r[0] + t[0]), int(r[1] + t[1]), int(r[2] + t[2]))
 
 
+def bounds_corners(assembly: Assembly, drop: int = 0) -> list[list[float]]:
+    """The 8 corners (LDU, y up) of an assembly's occupied voxel bounds, lowered by ``drop``
+    plates."""
+    (lo, hi) = assembly.bounds() or ((0, 0, 0), (0, 0, 0))
+    return [
+        [x * 10.0, (y - drop) * 8.0, z * 10.0]
+        for x in (lo[0], hi[0] + 1)
+        for y in (lo[1], hi[1] + 1)
+        for z in (lo[2], hi[2] + 1)
+    ]
+
+
+def manual_camera(
+    assembly: Assembly,
+    elevation: float = 30.0,
+    azimuth: float = 225.0,
+    fill: float = 0.85,
+    drop: int = 0,
+) -> Camera:
+    """A manual-style camera framing an assembly (the shape fills ``fill`` of the frame)."""
+    import numpy as np
+
+    corners = np.array(bounds_corners(assembly, drop), dtype=np.float64)
+    return Camera(elevation, azimuth).fitted(corners, fill)
+
+
 #: Attach-kind codes returned by :meth:`Assembly.candidates`.
 ATTACH_KINDS = ("on_studs", "from_below", "ground")
 
@@ -61,6 +87,8 @@ __all__ = [
     "part_info",
     "part_mesh",
     "render",
+    "bounds_corners",
+    "manual_camera",
     "resolve_part",
     "rotate_lattice",
 ]

@@ -19,7 +19,7 @@ from typing import Any
 
 from mepnet import _brickgeom as _bg
 from mepnet import ldraw
-from mepnet.geom import BrickGeomError, rotate_lattice
+from mepnet.geom import BrickGeomError, manual_camera, rotate_lattice
 
 
 def bundled_example() -> Path:
@@ -84,7 +84,6 @@ def print_plan(file: ldraw.LDrawFile, checks: list[dict[str, Any]]) -> None:
 
 def render_steps(file: ldraw.LDrawFile, checks: list[dict[str, Any]], out: Path, size: int) -> int:
     """Render the cumulative shape after every step of every model; returns images written."""
-    import numpy as np
     from PIL import Image
 
     out.mkdir(parents=True, exist_ok=True)
@@ -116,17 +115,8 @@ def render_steps(file: ldraw.LDrawFile, checks: list[dict[str, Any]], out: Path,
                 pass  # overlapping real parts are left out, as in `ldraw info`
         if len(final) == 0:
             continue
-        lo, hi = final.bounds()
-        drop = lo[1]
-        corners = np.array(
-            [
-                [x * 10.0, (y - drop) * 8.0, z * 10.0]
-                for x in (lo[0], hi[0] + 1)
-                for y in (lo[1], hi[1] + 1)
-                for z in (lo[2], hi[2] + 1)
-            ]
-        )
-        camera = _bg.Camera(30.0, 225.0).fitted(corners, 0.85)
+        drop = final.bounds()[0][1]
+        camera = manual_camera(final, drop=drop)
         asm = _bg.Assembly()
         safe = "".join(c if c.isalnum() or c in "-_" else "_" for c in model["name"])
         for s, step in enumerate(steps):

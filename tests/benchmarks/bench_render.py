@@ -39,6 +39,7 @@ from functools import partial
 import mepnet
 import numpy as np
 import trimesh
+from mepnet.geom import manual_camera
 from trimesh.ray import ray_triangle
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
@@ -60,16 +61,7 @@ MIN_ROW_S = 4.0  # least time spent timing brickgeom + Embree per row (noise on 
 
 
 def fitted_camera(asm: mepnet.Assembly) -> mepnet.Camera:
-    lo, hi = asm.bounds()
-    corners = np.array(
-        [
-            [x * 10.0, y * 8.0, z * 10.0]
-            for x in (lo[0], hi[0] + 1)
-            for y in (lo[1], hi[1] + 1)
-            for z in (lo[2], hi[2] + 1)
-        ]
-    )
-    return mepnet.Camera(30.0, 225.0).fitted(corners, 0.85)
+    return manual_camera(asm)
 
 
 def rot_yaw(v: np.ndarray, yaw: int) -> np.ndarray:
