@@ -1,0 +1,211 @@
+"""Training samples: a manual step as tensors, with targets from ``manual.json`` and the
+instance map.
+
+A sample holds the network inputs (image + edge channel, base-shape voxels, camera, component
+voxels per slot) and the targets at the head stride: Gaussian centre heatmaps per slot, the
+keypoint offsets, semantic masks per slot, an instance map for the associative-embedding loss,
+and per instance its slot, keypoint cell and rotation class. Augmentation (colour, blur, scale)
+keeps image, camera and keypoints consistent.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from mepnet import _brickgeom as _bg
+from mepnet.data import Build, ComponentRef, Manual
+from mepnet.model.config import ModelConfig
+
+#: Largest number of instances a step can add (the generator's limit).
+MAX_INSTANCES = 10
+
+
+@dataclass
+class StepSample:
+    """Network inputs and targets of one step (no batch dimension)."""
+
+    tensors: dict[str, torch.Tensor]
+
+
+def edge_channel(rgb: np.ndarray) -> np.ndarray:
+    """|Laplacian| of the grey image, scaled to [0, 1] (the paper feeds an edge image)."""
+    g = rgb.astype(np.float32).mean(axis=2) / 255.0
+    p = np.pad(g, 1, mode="edge")
+    lap = 4 * g - p[:-2, 1:-1] - p[2:, 1:-1] - p[1:-1, :-2] - p[1:-1, 2:]
+    return np.clip(np.abs(lap) * 4.0, 0.0, 1.0)
+
+
+def camera_vector(camera: dict[str, Any]) -> np.ndarray:
+    """(12,) rotation rows u, v, w, scale, tx, ty."""
+    cam = _bg.Camera(
+        camera["elevation"],
+        camera["azimuth"],
+        camera["roll"],
+        camera["scale"],
+        tuple(camera["translation"]),
+    )
+    return np.concatenate(
+        [cam.rotation().ravel(), [camera["scale"]], camera["translation"]]
+    ).astype(np.float32)
+
+
+def base_voxels(asm: _bg.Assembly, grid: tuple[int, int, int]) -> np.ndarray:
+    """Occupancy of the window (Z, Y, X) of the config's base grid."""
+    gx, gy, gz = grid
+    occ, _ = asm.occupancy((-gx // 2, 0, -gz // 2), (gx // 2 - 1, gy - 1, gz // 2 - 1))
+    return np.ascontiguousarray(occ.transpose(2, 1, 0), dtype=np.float32)  # (X,Y,Z) -> (Z,Y,X)
+
+
+def component_voxels(comp: _bg.Component, grid: tuple[int, int, int]) -> np.ndarray:
+    """The component's voxels centred in the component grid, (Z, Y, X)."""
+    gx, gy, gz = grid
+    v = comp.voxels.astype(np.int64)
+    centre = (v.min(axis=0) + v.max(axis=0) + 1) // 2
+    idx = v - centre + np.array([gx // 2, gy // 2, gz // 2])
+    keep = np.all((idx >= 0) & (idx < np.array(grid)), axis=1)
+    out = np.zeros((gz, gy, gx), dtype=np.float32)
+    idx = idx[keep]
+    out[idx[:, 2], idx[:, 1], idx[:, 0]] = 1.0
+    return out
+
+
+def _gaussian(heat: np.ndarray, cx: float, cy: float, sigma: float) -> None:
+    h, w = heat.shape
+    ys, xs = np.arange(h)[:, None] + 0.5, np.arange(w)[None, :] + 0.5
+    np.maximum(heat, np.exp(-((xs - cx) ** 2 + (ys - cy) ** 2) / (2 * sigma**2)), out=heat)
+
+
+def step_slots(step: Any) -> list[ComponentRef]:
+    """Component types of a step in manual order (slot order)."""
+    return [c.component for c in step.components]
+
+
+def make_sample(
+    manual: Manual,
+    build: Build,
+    step_index: int,
+    cfg: ModelConfig,
+    augment: bool = False,
+    rng: np.random.Generator | None = None,
+    components: dict[ComponentRef, _bg.Component] | None = None,
+    base: _bg.Assembly | None = None,
+) -> StepSample:
+    """Inputs and targets of step ``step_index`` of ``build``. ``components`` and ``base``
+    default to the ground truth (the predictor passes its own)."""
+    rng = rng or np.random.default_rng(0)
+    step = build.steps[step_index]
+    slots = step_slots(step)[: cfg.k_max]
+    comps = components or {}
+    rgb = step.image()
+    ids = step.ids()
+    cam = dict(step.camera)
+    kps = {v.id: np.array(v.keypoints[0], dtype=np.float64) for v in step.views}
+    if augment:
+        rgb, ids, cam, kps = _augment(rgb, ids, cam, kps, rng)
+    # keypoints at the network's resolution
+    kps = {k: v * (cfg.image_size / rgb.shape[1]) for k, v in kps.items()}
+    # resize to the network's size (nearest for ids)
+    img_t = torch.from_numpy(np.array(rgb)).permute(2, 0, 1).float()[None] / 255.0
+    if img_t.shape[-1] != cfg.image_size or img_t.shape[-2] != cfg.image_size:
+        img_t = F.interpolate(
+            img_t, size=(cfg.image_size, cfg.image_size), mode="bilinear", align_corners=False
+        )
+    img = img_t[0].numpy()
+    edge = edge_channel((img.transpose(1, 2, 0) * 255).astype(np.uint8))
+    image = np.concatenate([img, edge[None]], axis=0).astype(np.float32)
+    n = cfg.out_size
+    stride = cfg.image_size / n
+    ids_small = ids[
+        (np.arange(n) * ids.shape[0] // n)[:, None], (np.arange(n) * ids.shape[1] // n)[None, :]
+    ]
+    base = base if base is not None else manual.assembly_before(step_index, build)
+    heat = np.zeros((cfg.k_max, n, n), np.float32)
+    seg = np.zeros((cfg.k_max, n, n), np.float32)
+    inst_map = np.zeros((n, n), np.int64)  # 0 background, i + 1 instance i
+    inst_slot = np.zeros(MAX_INSTANCES, np.int64)
+    inst_cell = np.zeros((MAX_INSTANCES, 2), np.int64)  # (x, y) at head resolution
+    inst_off = np.zeros((MAX_INSTANCES, 2), np.float32)
+    inst_rot = np.zeros(MAX_INSTANCES, np.int64)
+    inst_valid = np.zeros(MAX_INSTANCES, np.float32)
+    comp_vox = np.zeros((cfg.k_max, 1, *cfg.comp_grid[::-1]), np.float32)
+    comp_valid = np.zeros(cfg.k_max, np.float32)
+    k_inst = 0
+    for s, ref in enumerate(slots):
+        comp = comps.get(ref) or manual.component(ref)
+        comp_vox[s, 0] = component_voxels(comp, cfg.comp_grid)
+        comp_valid[s] = 1.0
+        sc = step.components[s]
+        for iid in sc.instances:
+            if k_inst >= MAX_INSTANCES:
+                break
+            kp = kps[iid] / stride  # in head cells
+            cx, cy = float(kp[0]), float(kp[1])
+            cell = np.clip(np.floor([cx, cy]).astype(np.int64), 0, n - 1)
+            # the peak (exactly 1) sits on the keypoint's cell; the offset carries the rest
+            _gaussian(heat[s], cell[0] + 0.5, cell[1] + 0.5, sigma=1.5)
+            m = ids_small == iid
+            seg[s][m] = 1.0
+            inst_map[m] = k_inst + 1
+            inst_slot[k_inst] = s
+            inst_cell[k_inst] = cell
+            inst_off[k_inst] = (cx - cell[0], cy - cell[1])
+            inst_rot[k_inst] = _bg.rotation_class(comp.symmetry, build.instances[iid].yaw)
+            inst_valid[k_inst] = 1.0
+            k_inst += 1
+    t = {
+        "image": torch.from_numpy(image),
+        "base_voxels": torch.from_numpy(base_voxels(base, cfg.base_grid))[None],
+        "camera": torch.from_numpy(camera_vector(cam)),
+        "comp_voxels": torch.from_numpy(comp_vox),
+        "comp_valid": torch.from_numpy(comp_valid),
+        "heatmap": torch.from_numpy(heat),
+        "seg": torch.from_numpy(seg),
+        "inst_map": torch.from_numpy(inst_map),
+        "inst_slot": torch.from_numpy(inst_slot),
+        "inst_cell": torch.from_numpy(inst_cell),
+        "inst_offset": torch.from_numpy(inst_off),
+        "inst_rot": torch.from_numpy(inst_rot),
+        "inst_valid": torch.from_numpy(inst_valid),
+    }
+    return StepSample(tensors=t)
+
+
+def _augment(
+    rgb: np.ndarray,
+    ids: np.ndarray,
+    cam: dict[str, Any],
+    kps: dict[int, np.ndarray],
+    rng: np.random.Generator,
+) -> tuple[np.ndarray, np.ndarray, dict[str, Any], dict[int, np.ndarray]]:
+    """Colour gain/bias, optional blur, and a zoom about the image centre (camera and keypoints
+    follow), so the detector does not depend on our renderer's exact look."""
+    h, w = ids.shape
+    img = rgb.astype(np.float32)
+    img = img * rng.uniform(0.8, 1.2, size=3) + rng.uniform(-20, 20, size=3)
+    if rng.random() < 0.3:
+        p = np.pad(img, ((1, 1), (1, 1), (0, 0)), mode="edge")
+        img = (p[:-2, 1:-1] + p[2:, 1:-1] + p[1:-1, :-2] + p[1:-1, 2:] + 4 * img) / 8
+    zoom = float(rng.uniform(0.9, 1.1))
+    if abs(zoom - 1) > 1e-3:
+        ys = np.clip(((np.arange(h) + 0.5 - h / 2) / zoom + h / 2).astype(np.int64), 0, h - 1)
+        xs = np.clip(((np.arange(w) + 0.5 - w / 2) / zoom + w / 2).astype(np.int64), 0, w - 1)
+        img = img[ys[:, None], xs[None, :]]
+        ids = ids[ys[:, None], xs[None, :]]
+        cam = {
+            **cam,
+            "scale": cam["scale"] * zoom,
+            "translation": [t * zoom for t in cam["translation"]],
+        }
+        centre = np.array([w / 2, h / 2])
+        kps = {k: (v - centre) * zoom + centre for k, v in kps.items()}
+    return np.clip(img, 0, 255).astype(np.uint8), ids, cam, kps
+
+
+def collate(samples: list[StepSample]) -> dict[str, torch.Tensor]:
+    """Stack samples into a batch."""
+    return {k: torch.stack([s.tensors[k] for s in samples]) for k in samples[0].tensors}
