@@ -1,12 +1,16 @@
 """The main job: a building manual in, an executable build plan out.
 
-    python -m mepnet.infer [MODEL] [--out DIR]
+    python -m mepnet.infer MANUAL_DIR [--out DIR] [--predictor P] [--weights W]
+    python -m mepnet.infer [MODEL.mpd] [--out DIR]
 
-Until the detector lands, this reads a build plan that already exists (an LDraw model with
-steps; with no argument, the example bundled in the package), and prints, submodules first,
-every step's components with their lattice and LDraw poses and whether each step is physically
-valid (connected, no collision). With ``--out`` it also renders every step as a manual-style
-image with brickgeom's rasterizer.
+A manual folder (``manual.json`` + step images): the predictor (the detector with ``--weights``,
+or ``oracle`` / ``oracle-noisy`` / ``abys``) runs over the manual tree, submodules first, on its
+own predictions, and ``plan.json``, ``plan.mpd`` and step overlays are written to ``--out``; a
+per-step table is printed, with accuracy against the manual's ground truth.
+
+An LDraw model (or, with no argument, the example bundled in the package, until trained weights
+ship): its existing build plan is printed submodules first, with every step's lattice and LDraw
+poses and whether it is physically valid; ``--out`` renders every step.
 """
 
 from __future__ import annotations
@@ -151,16 +155,98 @@ def submodule_component(
     return _bg.Component.from_bricks(name, parts, np.array(poses, dtype=np.int64), colours)
 
 
+def run_manual(path: Path, args: argparse.Namespace) -> int:
+    """The manual-folder path: predictor over the manual tree, plan files, per-step table."""
+    from mepnet.data import load_manual
+    from mepnet.plan import write_plan
+    from mepnet.predictors import make_predictor
+
+    manual = load_manual(path)
+    if args.predictor == "mepnet":
+        if args.weights is None:
+            raise BrickGeomError(
+                "no trained weights are bundled yet: pass --weights MODEL.safetensors, or "
+                "--predictor oracle to run stage 2 from the manual's ground truth"
+            )
+        from mepnet.checkpoint import load_predictor
+
+        predictor = load_predictor(args.weights)
+    else:
+        predictor = make_predictor(args.predictor, sigma=args.sigma)
+    out = args.out or Path(f"{path.name}-plan")
+    plan = write_plan(manual, predictor, out)
+    print(f"mepnet: manual {path}: predictor {plan['predictor']}")
+    for name, steps in [
+        *((s["name"], s["steps"]) for s in plan["submodules"]),
+        ("main model", plan["steps"]),
+    ]:
+        print(f"\n{name}")
+        print(
+            f"  {'step':>4}  {'component':<22} {'yaw':>3}  {'lattice (x, y, z)':<18} {'attach':<11} ok"
+        )
+        for s in steps:
+            for j, c in enumerate(s["components"]):
+                comp = c["component"].get("part") or f"[{c['component'].get('name')}]"
+                lat = (
+                    "(" + ", ".join(str(v) for v in c["lattice"]) + ")" if c.get("lattice") else "-"
+                )
+                ok = (
+                    "yes"
+                    if c.get("correct")
+                    else ("FAILED: " + c["failure"] if c.get("failure") else "no")
+                )
+                label = f"{s['index']:>4}" if j == 0 else "    "
+                print(
+                    f"  {label}  {comp[:22]:<22} {c.get('yaw', '-')!s:>3}  {lat:<18} {c.get('attach') or '-':<11} {ok}"
+                )
+    total = plan["components"]
+    print(
+        f"\n{plan['correct']}/{total} components exactly right ({100 * plan['correct'] / max(total, 1):.1f}%); wrote {out}/plan.json, plan.mpd and overlays"
+    )
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point; returns the exit status (2 on bad input, with one line on stderr)."""
+    from mepnet.predictors import PREDICTORS
+
     ap = argparse.ArgumentParser(prog="python -m mepnet.infer", description=__doc__.splitlines()[0])
     ap.add_argument(
-        "model", nargs="?", help="LDraw model (.ldr/.mpd); default: the bundled example"
+        "model",
+        nargs="?",
+        help="a manual folder (manual.json + step images) or an LDraw model (.ldr/.mpd); default: the bundled example",
     )
-    ap.add_argument("--out", type=Path, help="folder for rendered step images")
-    ap.add_argument("--size", type=int, default=256, help="image size in pixels (default 256)")
+    ap.add_argument(
+        "--out",
+        type=Path,
+        help="output folder (plan files for a manual; step images for an LDraw model)",
+    )
+    ap.add_argument(
+        "--size",
+        type=int,
+        default=256,
+        help="image size in pixels for LDraw step images (default 256)",
+    )
+    ap.add_argument(
+        "--predictor",
+        default="mepnet",
+        choices=PREDICTORS,
+        help="for manual folders (default mepnet)",
+    )
+    ap.add_argument(
+        "--weights", type=Path, help="detector weights (model.safetensors) for --predictor mepnet"
+    )
+    ap.add_argument(
+        "--sigma", type=float, default=1.0, help="keypoint noise for --predictor oracle-noisy"
+    )
     args = ap.parse_args(argv)
     path = Path(args.model) if args.model else bundled_example()
+    if path.is_dir():
+        try:
+            return run_manual(path, args)
+        except (BrickGeomError, ValueError, OSError) as e:
+            print(f"mepnet.infer: error: {e}", file=sys.stderr)
+            return 2
     try:
         file = ldraw.read(path)
         checks = _bg.check_ldraw(file.to_dict())
