@@ -284,16 +284,12 @@ def iter_manual_dirs(root: str | os.PathLike[str]) -> Iterator[Path]:
             yield p
 
 
-try:  # a real torch Dataset when torch is installed (the detector's training needs it)
-    from torch.utils.data import Dataset as _DatasetBase
-except ImportError:  # torch is optional for the geometry and data tools
-    _DatasetBase = object  # type: ignore[misc,assignment]
-
-
-class StepDataset(_DatasetBase):  # type: ignore[misc,valid-type]
+class StepDataset:
     """All steps of the main builds (and, with ``submodules=True``, of submodule builds) of the
     manuals under some folders. ``ds[i]`` is a dict: ``image`` (H, W, 3) uint8, ``ids`` (H, W)
-    int32, ``step`` (the :class:`Step`), ``manual`` (the :class:`Manual`), ``build``."""
+    int32, ``step`` (the :class:`Step`), ``manual`` (the :class:`Manual`), ``build``. Training
+    wraps it in a torch ``Dataset`` of tensors (``mepnet.train_data``); this module does not
+    import torch, so the data tools start fast."""
 
     def __init__(
         self,
