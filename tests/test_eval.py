@@ -102,7 +102,8 @@ def test_bad_input_exits_2(tmp_path: Path, manuals: Path):
     cases = [
         (["--data", str(tmp_path / "missing"), "--predictor", "oracle"], "not a folder"),
         (["--data", str(tmp_path), "--predictor", "oracle"], "no manual folders"),
-        (["--data", str(manuals), "--predictor", "mepnet"], "trained detector"),
+        (["--data", str(manuals), "--predictor", "mepnet"], "--weights"),
+        (["--data", str(manuals), "--predictor", "direct3d"], "Direct3D"),
         (["--data", str(manuals), "--predictor", "oracle-noisy", "--sigma", "-1"], "--sigma"),
     ]
     for args, msg in cases:
@@ -181,3 +182,48 @@ def test_eval_runs_on_a_converted_real_model(tmp_path: Path):
     assert m["n_steps"] > 0 and m["n_components"] > 0
     # parts resting on dropped parts cannot be placed by any connection-based method; the rest is
     assert m["component_acc"] > 0.5
+
+
+def test_mepnet_predictor_from_trained_weights(manuals: Path, tmp_path: Path):
+    out = tmp_path / "run"
+    r = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "mepnet.train",
+            "--data",
+            str(manuals),
+            "--out",
+            str(out),
+            "--model",
+            "tiny",
+            "--steps",
+            "2",
+            "--batch-size",
+            "2",
+            "--workers",
+            "0",
+            "--no-progress",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert r.returncode == 0, r.stderr
+    one = sorted(manuals.iterdir())[0]
+    r = run_eval(
+        "--data",
+        str(one),
+        "--predictor",
+        "mepnet",
+        "--weights",
+        str(out / "model.safetensors"),
+        "--cd-points",
+        "200",
+    )
+    assert r.returncode == 0, r.stderr
+    assert "mepnet" in r.stdout
+    bad = tmp_path / "bad.safetensors"
+    bad.write_bytes(b"\x80\x04not a safetensors file")
+    r = run_eval("--data", str(one), "--predictor", "mepnet", "--weights", str(bad))
+    assert r.returncode == 2 and "bad.safetensors" in r.stderr and "Traceback" not in r.stderr

@@ -375,6 +375,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=0, help="noise seed for oracle-noisy")
     ap.add_argument("--time-limit", type=float, default=60.0, help="abys: seconds per component")
     ap.add_argument("--cd-points", type=int, default=10_000, help="points sampled per surface")
+    ap.add_argument("--weights", help="detector weights (model.safetensors) for --predictor mepnet")
     ap.add_argument("--no-progress", action="store_true")
     args = ap.parse_args(argv)
     try:
@@ -382,7 +383,9 @@ def main(argv: list[str] | None = None) -> int:
             raise ManualFormatError(f"{args.data}: not a folder")
         if args.sigma < 0 or args.cd_points < 1 or args.time_limit <= 0:
             raise ValueError("--sigma must be >= 0, --cd-points >= 1, --time-limit > 0")
-        predictor = make_predictor(args.predictor, args.sigma, args.seed, args.time_limit)
+        predictor = make_predictor(
+            args.predictor, args.sigma, args.seed, args.time_limit, args.weights
+        )
         result = evaluate(
             args.data, predictor, args.autoregressive, args.cd_points, not args.no_progress
         )

@@ -183,18 +183,30 @@ PREDICTORS = ("oracle", "oracle-noisy", "abys", "mepnet", "direct3d")
 
 
 def make_predictor(
-    name: str, sigma: float = 1.0, seed: int = 0, time_limit_s: float = 60.0
+    name: str,
+    sigma: float = 1.0,
+    seed: int = 0,
+    time_limit_s: float = 60.0,
+    weights: str | None = None,
 ) -> Predictor:
-    """A predictor by name."""
+    """A predictor by name (``mepnet`` needs ``weights``, a ``model.safetensors``)."""
     if name == "oracle":
         return OraclePredictor(0.0, seed)
     if name == "oracle-noisy":
         return OraclePredictor(sigma, seed)
     if name == "abys":
         return AbysPredictor(time_limit_s)
-    if name in ("mepnet", "direct3d"):
+    if name == "mepnet":
+        if weights is None:
+            raise ValueError(
+                "predictor 'mepnet' needs --weights MODEL.safetensors (no trained weights ship yet)"
+            )
+        from mepnet.checkpoint import load_predictor
+
+        return load_predictor(weights)
+    if name == "direct3d":
         raise ValueError(
-            f"predictor '{name}' needs the trained detector, which is not part of this build yet"
+            "predictor 'direct3d' (the Direct3D baseline) is not part of this build yet"
         )
     raise ValueError(f"unknown predictor '{name}' (choose from {', '.join(PREDICTORS)})")
 
