@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import generate_manuals
 from mepnet import _brickgeom as _bg
 from mepnet.eval import evaluate
 from mepnet.predictors import AbysPredictor, OraclePredictor, make_predictor
@@ -18,25 +19,7 @@ SHARED = Path(__file__).resolve().parents[2] / "shared"
 
 @pytest.fixture(scope="module")
 def manuals(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    out = tmp_path_factory.mktemp("evaldata")
-    r = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "mepnet.synth",
-            "--no-progress",
-            "--out",
-            str(out),
-            "--manuals",
-            "3",
-            "--seed",
-            "777",
-        ],
-        capture_output=True,
-        text=True,
-    )
-    assert r.returncode == 0, r.stderr
-    return out
+    return generate_manuals(tmp_path_factory.mktemp("evaldata"), 3, 777)
 
 
 def run_eval(*args: str) -> subprocess.CompletedProcess[str]:

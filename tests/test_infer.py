@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+from conftest import generate_manuals
 from PIL import Image
 
 
@@ -43,26 +44,7 @@ def test_manual_folder_to_plan_files(tmp_path: Path):
 
     from mepnet import ldraw
 
-    data = tmp_path / "data"
-    r = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "mepnet.synth",
-            "--no-progress",
-            "--out",
-            str(data),
-            "--manuals",
-            "1",
-            "--seed",
-            "31",
-            "--size",
-            "96",
-        ],
-        capture_output=True,
-        text=True,
-    )
-    assert r.returncode == 0, r.stderr
+    data = generate_manuals(tmp_path / "data", 1, 31, size=96)
     manual = data / "manual_00000031"
     out = tmp_path / "plan"
     r = run(str(manual), "--predictor", "oracle", "--out", str(out))

@@ -3,13 +3,12 @@ brickgeom's renderer, targets, losses, decoding, and config round trips."""
 
 from __future__ import annotations
 
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
+from conftest import generate_manuals
 from mepnet import _brickgeom as _bg
 from mepnet.data import load_manual
 from mepnet.model.config import ModelConfig
@@ -21,26 +20,7 @@ from mepnet.model.targets import camera_vector, collate, make_sample
 
 @pytest.fixture(scope="module")
 def manual(tmp_path_factory: pytest.TempPathFactory):
-    out = tmp_path_factory.mktemp("m")
-    r = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "mepnet.synth",
-            "--no-progress",
-            "--out",
-            str(out),
-            "--manuals",
-            "1",
-            "--seed",
-            "5",
-            "--size",
-            "64",
-        ],
-        capture_output=True,
-        text=True,
-    )
-    assert r.returncode == 0, r.stderr
+    out = generate_manuals(tmp_path_factory.mktemp("m"), 1, 5, size=64)
     return load_manual(out / "manual_00000005")
 
 
