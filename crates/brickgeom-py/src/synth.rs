@@ -295,30 +295,15 @@ fn render_plan<'py>(
                 Some(r) => MeshSource::ldraw(r),
             };
             let images = render_build(&build, &cfg, &src, &ColourTable::builtin())?;
-            let mut asm = brickgeom::Assembly::new();
-            let mut attach = Vec::new();
-            for step in &build.steps {
-                let items: Vec<_> = step
-                    .instances
-                    .iter()
-                    .map(|&i| {
-                        (
-                            build.instances[i].component.clone(),
-                            build.instances[i].pose,
-                        )
-                    })
-                    .collect();
-                attach.push(
-                    asm.check_step(&items)
-                        .into_iter()
+            let attach: Vec<Vec<&str>> = build
+                .step_checks()
+                .into_iter()
+                .map(|step| {
+                    step.into_iter()
                         .map(|r| r.map_or("unsupported", |k| k.name()))
-                        .collect::<Vec<_>>(),
-                );
-                for (c, p) in items {
-                    // overlapping real parts stay out of the shape
-                    let _ = asm.add(c, p);
-                }
-            }
+                        .collect()
+                })
+                .collect();
             Ok((images, attach))
         })
         .py()?;

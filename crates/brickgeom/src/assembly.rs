@@ -190,6 +190,8 @@ pub struct Assembly {
 
 #[derive(Debug, Default)]
 struct FreePoints {
+    /// Occupied cell bounds (cached with the free points: stage 2 asks for them per query).
+    bounds: Option<(Lattice, Lattice)>,
     studs: Vec<Lattice>,
     anti_studs: Vec<Lattice>,
     stud_set: PointSet,
@@ -573,7 +575,12 @@ impl Assembly {
                 let (studs, stud_set) = collect(&self.stud_index, &|p| self.stud_is_free(p));
                 let (anti_studs, anti_stud_set) =
                     collect(&self.anti_stud_index, &|p| self.anti_stud_is_free(p));
+                let cells: Vec<Lattice> = self
+                    .instances()
+                    .flat_map(|(_, i)| i.voxels.iter().copied())
+                    .collect();
                 Arc::new(FreePoints {
+                    bounds: bounds(&cells),
                     studs,
                     anti_studs,
                     stud_set,
@@ -595,11 +602,7 @@ impl Assembly {
 
     /// Occupied cell bounds `(lo, hi)` inclusive; `None` when empty.
     pub fn bounds(&self) -> Option<(Lattice, Lattice)> {
-        let cells: Vec<Lattice> = self
-            .instances()
-            .flat_map(|(_, i)| i.voxels.iter().copied())
-            .collect();
-        bounds(&cells)
+        self.free_points().bounds
     }
 
     /// The instance-id grid over `[lo, hi]` (inclusive), `-1` where empty.

@@ -213,6 +213,32 @@ pub struct Build {
 }
 
 impl Build {
+    /// The components and poses a step adds.
+    pub fn step_items(&self, step: usize) -> Vec<(Arc<Component>, Pose)> {
+        self.steps[step]
+            .instances
+            .iter()
+            .map(|&i| (self.instances[i].component.clone(), self.instances[i].pose))
+            .collect()
+    }
+
+    /// Every step checked against the shape of the steps before it (`Assembly::check_step`):
+    /// per step, per instance, its attach kind or why it is invalid. Instances that cannot be
+    /// added (overlapping real parts) stay out of later base shapes.
+    pub fn step_checks(&self) -> Vec<Vec<Result<AttachKind>>> {
+        let mut asm = Assembly::new();
+        (0..self.steps.len())
+            .map(|s| {
+                let items = self.step_items(s);
+                let res = asm.check_step(&items);
+                for (c, p) in items {
+                    let _ = asm.add(c, p);
+                }
+                res
+            })
+            .collect()
+    }
+
     /// The finished shape.
     pub fn assembly(&self) -> Result<Assembly> {
         let mut asm = Assembly::new();
@@ -1153,9 +1179,8 @@ fn render_ids_aligned(
 /// Check a build's manual: every step valid against the shape before it (connected, no
 /// collision), within the instance and type limits; the steps add every instance exactly once.
 pub fn validate_build(build: &Build, cfg: &SynthConfig) -> Result<()> {
-    let mut asm = Assembly::new();
     let mut seen = vec![false; build.instances.len()];
-    for (s, step) in build.steps.iter().enumerate() {
+    for (s, (step, checks)) in build.steps.iter().zip(build.step_checks()).enumerate() {
         let types: BTreeSet<ComponentRef> = step
             .instances
             .iter()
@@ -1169,17 +1194,7 @@ pub fn validate_build(build: &Build, cfg: &SynthConfig) -> Result<()> {
                 types.len()
             )));
         }
-        let items: Vec<(Arc<Component>, Pose)> = step
-            .instances
-            .iter()
-            .map(|&i| {
-                (
-                    build.instances[i].component.clone(),
-                    build.instances[i].pose,
-                )
-            })
-            .collect();
-        for (k, r) in asm.check_step(&items).into_iter().enumerate() {
+        for (k, r) in checks.into_iter().enumerate() {
             if let Err(e) = r {
                 return Err(BrickGeomError::InvalidArgument(format!(
                     "step {}: instance {} is invalid: {e}",
@@ -1194,10 +1209,6 @@ pub fn validate_build(build: &Build, cfg: &SynthConfig) -> Result<()> {
                     "instance {i} is added twice"
                 )));
             }
-            asm.add(
-                build.instances[i].component.clone(),
-                build.instances[i].pose,
-            )?;
         }
     }
     if let Some(i) = seen.iter().position(|s| !s) {
