@@ -17,8 +17,34 @@ def run(*args: str) -> subprocess.CompletedProcess[str]:
     )
 
 
-def test_demo_prints_the_plan_and_renders_steps(tmp_path: Path):
-    r = run("--out", str(tmp_path / "out"), "--size", "96")
+def test_demo_runs_the_bundled_manual_with_the_shipped_weights(tmp_path: Path):
+    import json
+
+    from mepnet import ldraw
+
+    out = tmp_path / "plan"
+    r = run("--out", str(out))
+    assert r.returncode == 0, r.stderr
+    assert "bundled example manual" in r.stdout
+    # submodules first, then the main model; a per-step table with accuracy
+    assert r.stdout.index("submodule_0") < r.stdout.index("main model")
+    plan = json.loads((out / "plan.json").read_text())
+    assert plan["predictor"] == "mepnet"
+    acc = plan["correct"] / plan["components"]
+    assert f"({100 * acc:.1f}%)" in r.stdout
+    # the shipped weights get most of the bundled example right (measured: see docs/detector.md)
+    assert acc >= 0.8, r.stdout
+    info = ldraw.inspect(ldraw.read(out / "plan.mpd"))
+    assert info["steps_checked"] == info["steps_valid"] > 0
+    assert len(list(out.glob("*overlay_*.png"))) == len(plan["steps"]) + sum(
+        len(s["steps"]) for s in plan["submodules"]
+    )
+
+
+def test_ldraw_model_prints_the_plan_and_renders_steps(tmp_path: Path):
+    from mepnet.infer import bundled_example
+
+    r = run(str(bundled_example()), "--out", str(tmp_path / "out"), "--size", "96")
     assert r.returncode == 0, r.stderr
     # submodules first, then the main model
     assert r.stdout.index("tower.ldr (submodule") < r.stdout.index("house.ldr (main model")
@@ -29,6 +55,105 @@ def test_demo_prints_the_plan_and_renders_steps(tmp_path: Path):
     assert first.shape == (96, 96, 3)
     # something was drawn on the white background
     assert (first.reshape(-1, 3) != 255).any(axis=1).sum() > 200
+
+
+def test_detector_bad_input_exits_2_with_one_line(tmp_path: Path):
+    import shutil
+
+    import torch
+    from mepnet.checkpoint import save_model
+    from mepnet.infer import bundled_manual
+    from mepnet.model.config import ModelConfig
+    from mepnet.model.net import build_model
+
+    manual = tmp_path / "manual"
+    shutil.copytree(bundled_manual(), manual)
+
+    def fails(*args: str, needle: str) -> None:
+        r = run(str(manual), "--out", str(tmp_path / "out"), *args)
+        assert r.returncode == 2, r.stdout + r.stderr
+        err = r.stderr.strip()
+        assert "Traceback" not in err and err.count("\n") == 0 and needle in err, err
+        assert not (tmp_path / "out").exists()
+
+    fails("--weights", str(tmp_path / "nope.safetensors"), needle="not found")
+    corrupt = tmp_path / "corrupt.safetensors"
+    corrupt.write_bytes(b"\x10\x00\x00\x00\x00\x00\x00\x00{garbage")
+    fails("--weights", str(corrupt), needle="corrupt.safetensors")
+    # weights of one configuration under a header that names another
+    torch.manual_seed(0)
+    save_model(tmp_path, build_model(ModelConfig.tiny()).state_dict(), ModelConfig.slim().to_dict())
+    fails("--weights", str(tmp_path / "model.safetensors"), needle="shape")
+    # a missing step image is named
+    (manual / "step_003.png").unlink()
+    fails(needle="step_003.png is missing")
+
+
+def test_wrong_image_size_is_resized_and_said(tmp_path: Path):
+    import json
+    import shutil
+
+    from mepnet.infer import bundled_manual
+
+    manual = tmp_path / "manual"
+    shutil.copytree(bundled_manual(), manual)
+    for png in manual.glob("step_*[0-9].png"):
+        Image.open(png).resize((192, 192)).save(png)
+    r = run(str(manual), "--out", str(tmp_path / "out"))
+    assert r.returncode == 0, r.stderr
+    assert "192x192" in r.stderr and "resized" in r.stderr
+    plan = json.loads((tmp_path / "out" / "plan.json").read_text())
+    assert plan["components"] > 0
+
+
+def test_more_types_than_slots_take_several_passes(tmp_path: Path):
+    """Steps merged into one that adds more component types than the detector's 5 slots: every
+    instance still gets a prediction, from two forward passes."""
+    import json
+    import shutil
+
+    import torch
+    from mepnet.data import load_manual
+    from mepnet.model.config import ModelConfig
+    from mepnet.model.decode import MEPNetPredictor
+    from mepnet.model.net import build_model
+    from mepnet.plan import make_plan
+
+    src = generate_manuals(tmp_path / "data", 1, 41, size=64) / "manual_00000041"
+    doc = json.loads((src / "manual.json").read_text())
+    steps = doc["steps"]
+
+    # the shortest run of consecutive steps whose union has >= 6 distinct types
+    def key(c: dict) -> str:
+        return json.dumps(c["component"], sort_keys=True)
+
+    for n in range(2, len(steps) + 1):
+        types = {key(c) for st in steps[:n] for c in st["components"]}
+        if len(types) >= 6:
+            break
+    else:
+        raise AssertionError("the generated manual has fewer than 6 types")
+    merged = dict(steps[n - 1])
+    merged["components"] = [c for st in steps[:n] for c in st["components"]]
+    merged["instances"] = [v for st in steps[:n] for v in st["instances"]]
+    doc["steps"] = [merged, *steps[n:]]
+    for i, st in enumerate(doc["steps"]):
+        st["index"] = i + 1
+    manual = tmp_path / "merged"
+    shutil.copytree(src, manual)
+    (manual / "manual.json").write_text(json.dumps(doc))
+    man = load_manual(manual)
+    assert len(man.main.steps[0].components) >= 6
+    torch.manual_seed(0)
+    cfg = ModelConfig.tiny()
+    predictor = MEPNetPredictor(build_model(cfg).eval(), cfg)
+    calls = []
+    predictor.model.register_forward_hook(lambda *a: calls.append(1))
+    plan, _, _ = make_plan(man, predictor)
+    n_first = sum(c["count"] for c in merged["components"])
+    assert len(plan["steps"][0]["components"]) == n_first
+    # the first step took two passes, every other step of the main build one
+    assert len(calls) - len(plan["steps"]) - sum(len(s["steps"]) for s in plan["submodules"]) == 1
 
 
 def test_bad_model_exits_2(tmp_path: Path):
@@ -60,6 +185,3 @@ def test_manual_folder_to_plan_files(tmp_path: Path):
         len(s["steps"]) for s in plan["submodules"]
     )
     assert "components exactly right (100.0%)" in r.stdout
-    # the detector needs weights until trained ones ship
-    r = run(str(manual), "--out", str(tmp_path / "p2"))
-    assert r.returncode == 2 and "--weights" in r.stderr and "Traceback" not in r.stderr

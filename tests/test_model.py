@@ -15,7 +15,7 @@ from mepnet.model.config import ModelConfig
 from mepnet.model.decode import decode
 from mepnet.model.losses import total_loss
 from mepnet.model.net import StateEncoder, build_model
-from mepnet.model.targets import camera_vector, collate, make_sample
+from mepnet.model.targets import base_voxels, collate, make_sample, state_projection
 
 
 @pytest.fixture(scope="module")
@@ -24,18 +24,13 @@ def manual(tmp_path_factory: pytest.TempPathFactory):
     return load_manual(out / "manual_00000005")
 
 
-def test_first_hit_projection_matches_the_renderer():
+def test_first_hit_projection_lands_on_the_voxels_the_rays_hit():
     cfg = ModelConfig.slim()
     asm = _bg.Assembly()
     asm.add(_bg.Component.primitive("3001"), 0, (0, 3, 0))
     asm.add(_bg.Component.primitive("3003"), 1, (6, 3, 4))
     asm.add(_bg.Component.primitive("3022"), 0, (0, 4, 0))
     cam = _bg.Camera(30.0, 225.0).fitted(np.array([[-60.0, 0.0, -40.0], [80.0, 40.0, 60.0]]), 0.8)
-    n = 64
-    enc = StateEncoder(channels=1, grid=cfg.base_grid, depth_samples=96, out_size=n)
-    from mepnet.model.targets import base_voxels
-
-    vox = torch.from_numpy(base_voxels(asm, cfg.base_grid))[None, None]
     cdict = {
         "elevation": cam.elevation,
         "azimuth": cam.azimuth,
@@ -43,13 +38,37 @@ def test_first_hit_projection_matches_the_renderer():
         "scale": cam.scale,
         "translation": list(cam.translation),
     }
-    camv = torch.from_numpy(camera_vector(cdict))[None]
-    occ = enc.sample_rays(vox, camv)
-    coverage = enc.first_hit_weights(occ).sum(dim=2)[0, 0].numpy()  # (n, n)
-    ids = _bg.render(asm, cam, n, n)["ids"]
-    ours, theirs = coverage > 0.5, ids >= 0
-    iou = (ours & theirs).sum() / (ours | theirs).sum()
-    assert iou > 0.85, f"projection IoU {iou:.2f}"
+    n = 128
+    index, maps = state_projection(asm, cdict, n, cfg.base_grid)
+    silhouette = _bg.render(asm, cam, n, n)["ids"] >= 0
+    assert np.array_equal(maps[0] > 0, silhouette)
+    # nearly every ray that hits a part finds its voxel; misses are stud tops at most
+    assert (index >= 0).sum() >= 0.95 * silhouette.sum()
+    assert not (index[~silhouette] >= 0).any()
+    vox = base_voxels(asm, cfg.base_grid)
+    found = index[index >= 0]
+    assert vox.ravel()[found].all()
+    # each found voxel's centre projects within a voxel's reach (~8 LDU) of its pixel
+    gx, gy, _ = cfg.base_grid
+    x, y, z = found % gx, (found // gx) % gy, found // (gx * gy)
+    centre = np.stack(
+        [(x - gx // 2 + 0.5) * 10, (y + 0.5) * 8, (z - cfg.base_grid[2] // 2 + 0.5) * 10], 1
+    )
+    px, _ = cam.project(centre, n, n)
+    rows, cols = np.nonzero(index >= 0)
+    err = np.hypot(px[:, 0] - cols - 0.5, px[:, 1] - rows - 0.5)
+    assert err.max() < 9.0 * cam.scale * n / 2
+    # the encoder gathers exactly those voxels' features
+    torch.manual_seed(0)
+    enc = StateEncoder(channels=2).eval()
+    v = torch.from_numpy(vox)[None, None]
+    with torch.no_grad():
+        out = enc(v, torch.from_numpy(index)[None])
+        enc.convs[1].eval()  # batch norm with running statistics, as inside enc
+        feats = enc.convs(v).flatten(2)
+    r, c = rows[0], cols[0]
+    assert torch.allclose(out[0, :, r, c], feats[0, :, index[r, c]])
+    assert out[0, :, ~torch.from_numpy(index >= 0)].abs().max() == 0
 
 
 def test_forward_shapes_loss_and_decoding(manual):

@@ -207,6 +207,30 @@ def test_reader_rejects_bad_folders(tmp_path: Path, manuals: Path):
         load_manual(bad)
 
 
+def test_missing_and_wrong_size_step_images(
+    tmp_path: Path, manuals: Path, capsys: pytest.CaptureFixture[str]
+):
+    import shutil
+
+    from PIL import Image
+
+    folder = tmp_path / "m"
+    shutil.copytree(manuals / "manual_00000011", folder)
+    man = load_manual(folder)
+    step = man.main.steps[1]
+    want = step.image()
+    # an image of another size is resized to the manual's size, and that is said once
+    Image.fromarray(want).resize((50, 70)).save(step.image_path)
+    got = load_manual(folder).main.steps[1].image()
+    assert got.shape == want.shape
+    err = capsys.readouterr().err
+    assert "50x70" in err and "resized" in err
+    # a missing step image is named when the manual is opened
+    step.image_path.unlink()
+    with pytest.raises(ManualFormatError, match=f"{step.image_path.name} is missing"):
+        load_manual(folder)
+
+
 def test_camera_and_render_bad_input():
     with pytest.raises(_bg.InvalidArgumentError, match="non-finite"):
         _bg.Camera(float("nan"), 225.0)

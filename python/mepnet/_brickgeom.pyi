@@ -170,6 +170,7 @@ def infer_step(
     types: list[dict[str, Any]],
     max_error_px: float = 6.0,
     tie_px: float = 2.5,
+    rotation_by_mask: bool = True,
 ) -> list[dict[str, Any]]: ...
 def abys_step(
     base: Assembly,

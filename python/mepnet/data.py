@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import sys
 import tempfile
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
@@ -99,13 +100,27 @@ class Step:
     views: list[InstanceView]
     image_path: Path
     ids_path: Path
+    #: The manual's image size (W, H); an image of another size is resized to it.
+    size: tuple[int, int] | None = None
 
     def image(self) -> np.ndarray:
-        """The manual image, (H, W, 3) uint8."""
-        from PIL import Image
+        """The manual image, (H, W, 3) uint8, at the manual's image size (an image of another
+        size is resized, and that is said once per manual on stderr)."""
+        from PIL import Image, UnidentifiedImageError
 
-        with Image.open(self.image_path) as im:
-            return np.asarray(im.convert("RGB"))
+        try:
+            with Image.open(self.image_path) as im:
+                rgb = im.convert("RGB")
+                if self.size is not None and rgb.size != tuple(self.size):
+                    _note_resize(self.image_path, rgb.size, self.size)
+                    rgb = rgb.resize(tuple(self.size), Image.Resampling.BILINEAR)
+                return np.asarray(rgb)
+        except FileNotFoundError:
+            raise ManualFormatError(
+                f"{self.image_path}: step {self.index} image is missing"
+            ) from None
+        except (UnidentifiedImageError, OSError) as e:
+            raise ManualFormatError(f"{self.image_path}: unreadable step image ({e})") from None
 
     def ids(self) -> np.ndarray:
         """The instance map, (H, W) int32: instance id, -1 on the background."""
@@ -125,6 +140,19 @@ class Step:
     def instance_ids(self) -> list[int]:
         """Ids of the instances this step adds."""
         return [v.id for v in self.views]
+
+
+_RESIZE_NOTED: set[Path] = set()
+
+
+def _note_resize(path: Path, got: tuple[int, int], want: tuple[int, int]) -> None:
+    if path.parent not in _RESIZE_NOTED:
+        _RESIZE_NOTED.add(path.parent)
+        print(
+            f"mepnet: {path}: image is {got[0]}x{got[1]}, the manual says {want[0]}x{want[1]}; "
+            "resized (and so are the other step images of this manual that differ)",
+            file=sys.stderr,
+        )
 
 
 @dataclass
@@ -187,7 +215,7 @@ class Manual:
 # Reading
 
 
-def _build_from_json(d: dict[str, Any], folder: Path) -> Build:
+def _build_from_json(d: dict[str, Any], folder: Path, size: tuple[int, int] | None = None) -> Build:
     instances = [
         Instance(
             id=i,
@@ -229,6 +257,7 @@ def _build_from_json(d: dict[str, Any], folder: Path) -> Build:
                 views=views,
                 image_path=folder / s["image"],
                 ids_path=folder / s["ids"],
+                size=size,
             )
         )
     return Build(instances=instances, steps=steps)
@@ -249,28 +278,37 @@ def load_manual(folder: str | os.PathLike[str]) -> Manual:
     if d.get("version") != VERSION:
         raise ManualFormatError(f"{path}: version {d.get('version')!r} is not supported")
     try:
+        size = tuple(int(v) for v in d["image_size"])
+        if len(size) != 2 or min(size) < 1:
+            raise ValueError(f"image_size {d['image_size']!r} is not [width, height]")
         subs = [
             Submodule(
                 name=s["name"],
                 symmetry=int(s["symmetry"]),
                 topmost=list(s["topmost"]),
                 bricks=list(s["bricks"]),
-                build=_build_from_json(s, folder),
+                build=_build_from_json(s, folder, size),  # type: ignore[arg-type]
             )
             for s in d["submodules"]
         ]
-        return Manual(
+        manual = Manual(
             path=folder,
             source=dict(d["source"]),
-            image_size=tuple(d["image_size"]),  # type: ignore[arg-type]
+            image_size=size,  # type: ignore[arg-type]
             parts=list(d["parts"]),
-            main=_build_from_json(d, folder),
+            main=_build_from_json(d, folder, size),  # type: ignore[arg-type]
             submodules=subs,
         )
     except (KeyError, TypeError, ValueError) as e:
         if isinstance(e, ManualFormatError):
             raise
         raise ManualFormatError(f"{path}: malformed ({type(e).__name__}: {e})") from None
+    steps = [st for b in [manual.main, *(s.build for s in manual.submodules)] for st in b.steps]
+    missing = [st.image_path.name for st in steps if not st.image_path.is_file()]
+    if missing:
+        more = f" (and {len(missing) - 1} more)" if len(missing) > 1 else ""
+        raise ManualFormatError(f"{folder}: step image {missing[0]} is missing{more}")
+    return manual
 
 
 def iter_manual_dirs(root: str | os.PathLike[str]) -> Iterator[Path]:

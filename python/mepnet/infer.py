@@ -1,16 +1,17 @@
 """The main job: a building manual in, an executable build plan out.
 
-    python -m mepnet.infer MANUAL_DIR [--out DIR] [--predictor P] [--weights W]
-    python -m mepnet.infer [MODEL.mpd] [--out DIR]
+    python -m mepnet.infer [MANUAL_DIR] [--out DIR] [--predictor P] [--weights W]
+    python -m mepnet.infer MODEL.mpd [--out DIR]
 
-A manual folder (``manual.json`` + step images): the predictor (the detector with ``--weights``,
-or ``oracle`` / ``oracle-noisy`` / ``abys``) runs over the manual tree, submodules first, on its
-own predictions, and ``plan.json``, ``plan.mpd`` and step overlays are written to ``--out``; a
-per-step table is printed, with accuracy against the manual's ground truth.
+A manual folder (``manual.json`` + step images; with no argument, the example manual bundled in
+the package): the predictor (by default the detector with the bundled slim weights, or
+``--weights``; or ``oracle`` / ``oracle-noisy`` / ``abys``) runs over the manual tree,
+submodules first, on its own predictions, and ``plan.json``, ``plan.mpd`` and step overlays are
+written to ``--out``; a per-step table is printed, with accuracy against the manual's ground
+truth.
 
-An LDraw model (or, with no argument, the example bundled in the package, until trained weights
-ship): its existing build plan is printed submodules first, with every step's lattice and LDraw
-poses and whether it is physically valid; ``--out`` renders every step.
+An LDraw model (.ldr/.mpd): its existing build plan is printed submodules first, with every
+step's lattice and LDraw poses and whether it is physically valid; ``--out`` renders every step.
 """
 
 from __future__ import annotations
@@ -27,8 +28,18 @@ from mepnet.geom import BrickGeomError, manual_camera, rotate_lattice
 
 
 def bundled_example() -> Path:
-    """Path of the bundled example model."""
+    """Path of the bundled example LDraw model."""
     return Path(str(resources.files("mepnet") / "data" / "example.mpd"))
+
+
+def bundled_manual() -> Path:
+    """Path of the bundled example manual folder (the default of ``python -m mepnet.infer``)."""
+    return Path(str(resources.files("mepnet") / "data" / "example_manual"))
+
+
+def bundled_weights() -> Path:
+    """Path of the shipped slim detector weights."""
+    return Path(str(resources.files("mepnet") / "data" / "weights" / "slim.safetensors"))
 
 
 def build_order(checks: list[dict[str, Any]], root: int = 0) -> list[int]:
@@ -163,14 +174,12 @@ def run_manual(path: Path, args: argparse.Namespace) -> int:
 
     manual = load_manual(path)
     if args.predictor == "mepnet":
-        if args.weights is None:
-            raise BrickGeomError(
-                "no trained weights are bundled yet: pass --weights MODEL.safetensors, or "
-                "--predictor oracle to run stage 2 from the manual's ground truth"
-            )
+        weights = args.weights or bundled_weights()
+        if not weights.is_file():
+            raise BrickGeomError(f"{weights}: detector weights not found")
         from mepnet.checkpoint import load_predictor
 
-        predictor = load_predictor(args.weights)
+        predictor = load_predictor(weights)
     else:
         predictor = make_predictor(args.predictor, sigma=args.sigma)
     out = args.out or Path(f"{path.name}-plan")
@@ -214,7 +223,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument(
         "model",
         nargs="?",
-        help="a manual folder (manual.json + step images) or an LDraw model (.ldr/.mpd); default: the bundled example",
+        help="a manual folder (manual.json + step images) or an LDraw model (.ldr/.mpd); default: the bundled example manual",
     )
     ap.add_argument(
         "--out",
@@ -234,13 +243,18 @@ def main(argv: list[str] | None = None) -> int:
         help="for manual folders (default mepnet)",
     )
     ap.add_argument(
-        "--weights", type=Path, help="detector weights (model.safetensors) for --predictor mepnet"
+        "--weights",
+        type=Path,
+        help="detector weights (model.safetensors) for --predictor mepnet (default: the shipped slim weights)",
     )
     ap.add_argument(
         "--sigma", type=float, default=1.0, help="keypoint noise for --predictor oracle-noisy"
     )
     args = ap.parse_args(argv)
-    path = Path(args.model) if args.model else bundled_example()
+    path = Path(args.model) if args.model else bundled_manual()
+    if args.model is None:
+        print(f"mepnet: the bundled example manual ({path}) with the shipped slim detector")
+        args.out = args.out or Path("mepnet-example-plan")
     if path.is_dir():
         try:
             return run_manual(path, args)
@@ -251,9 +265,8 @@ def main(argv: list[str] | None = None) -> int:
         file = ldraw.read(path)
         checks = _bg.check_ldraw(file.to_dict())
         info = ldraw.inspect(file)
-        what = "bundled example" if args.model is None else "model"
         print(
-            f"mepnet: {what} {path.name}: {info['models']} models, {info['steps']} steps, "
+            f"mepnet: model {path.name}: {info['models']} models, {info['steps']} steps, "
             f"{info['parts']} parts ({info['known_parts']} in the library)"
         )
         print_plan(file, checks)

@@ -37,9 +37,10 @@ fn rotation_class_py(symmetry: u8, yaw: u8) -> u8 {
 /// Stage 2 for one step. `types`: list of dicts {component, count, detections: [{keypoint:
 /// (x, y) px, score, rotation: 7 probabilities or None, mask: (H, W) bool array or None}]}.
 /// Returns one dict per instance: {type, detection, yaw, t, attach, error_px, iou, failure}
-/// (yaw/t/attach None on failure).
+/// (yaw/t/attach None on failure). `rotation_by_mask`: primitives with a mask choose the yaw by
+/// mask IoU plus class probability.
 #[pyfunction(name = "infer_step")]
-#[pyo3(signature = (base, camera, width, height, types, max_error_px=6.0, tie_px=2.5))]
+#[pyo3(signature = (base, camera, width, height, types, max_error_px=6.0, tie_px=2.5, rotation_by_mask=true))]
 #[allow(clippy::too_many_arguments)]
 fn infer_step_py<'py>(
     py: Python<'py>,
@@ -50,6 +51,7 @@ fn infer_step_py<'py>(
     types: &Bound<'py, PyList>,
     max_error_px: f64,
     tie_px: f64,
+    rotation_by_mask: bool,
 ) -> PyResult<Bound<'py, PyList>> {
     let mut tds = Vec::new();
     for (ti, t) in types.iter().enumerate() {
@@ -108,6 +110,7 @@ fn infer_step_py<'py>(
     let opts = InferOptions {
         max_error_px,
         tie_px,
+        rotation_by_mask,
     };
     let asm = &base.inner;
     let cam = camera.inner;

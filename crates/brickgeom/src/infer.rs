@@ -13,7 +13,9 @@
 //! nearest the camera wins. This is the paper's stud/anti-stud matching and voting, made exact:
 //! a candidate that matches the keypoint also matches all of its connection points.
 //!
-//! Rotation. Primitives take the yaw from the 7-way symmetry-aware class; submodules are
+//! Rotation. Primitives take the yaw from the 7-way symmetry-aware class; with a predicted mask,
+//! each distinct yaw's best placement is rasterized and the yaw with the highest mask IoU plus
+//! class probability wins (analysis-by-synthesis backing up the classifier). Submodules are
 //! rotated by synthesis: every yaw x every topmost brick as the keypoint's anchor, the candidate
 //! mask rasterized over the current assembly and compared with the predicted mask (IoU).
 //!
@@ -65,6 +67,9 @@ pub struct InferOptions {
     pub max_error_px: f64,
     /// Placements this close (pixels) to the best are ambiguous and compared by mask/depth.
     pub tie_px: f64,
+    /// Primitives with a mask: choose the yaw by mask IoU plus the rotation class probability
+    /// (analysis-by-synthesis, as for submodules) instead of the most probable class alone.
+    pub rotation_by_mask: bool,
 }
 
 impl Default for InferOptions {
@@ -72,6 +77,7 @@ impl Default for InferOptions {
         InferOptions {
             max_error_px: 6.0,
             tie_px: 2.5,
+            rotation_by_mask: true,
         }
     }
 }
@@ -337,6 +343,33 @@ fn best_placement(
         return Ok(best.map(|(iou, _, c)| (c, target.map(|_| iou))));
     }
     let anchor = comp.keypoints()[0];
+    if let (true, Some(_), Some(probs)) = (opts.rotation_by_mask, target, det.rotation.as_ref()) {
+        // Every distinct yaw's best placement, scored by mask IoU + class probability (both in
+        // [0, 1], so a confident class decides unless the silhouettes clearly disagree).
+        let mut best: Option<(f64, f64, Candidate, Option<f64>)> = None;
+        for yaw in yaws_from_classes(comp.symmetry, Some(probs)) {
+            let cands = ray_candidates(
+                asm,
+                comp,
+                yaw,
+                anchor,
+                det.keypoint,
+                proj,
+                opts.max_error_px,
+            );
+            if let Some((cand, iou)) = resolve_ties(comp, cands, camera, target, opts)?
+                .into_iter()
+                .next()
+            {
+                let prob = probs[rotation_class(comp.symmetry, yaw) as usize] as f64;
+                let key = (iou.unwrap_or(0.0) + prob, -cand.error_px);
+                if best.is_none_or(|(bk, be, _, _)| key > (bk, be)) {
+                    best = Some((key.0, key.1, cand, iou));
+                }
+            }
+        }
+        return Ok(best.map(|(_, _, c, iou)| (c, iou)));
+    }
     for yaw in yaws_from_classes(comp.symmetry, det.rotation.as_ref()) {
         let cands = ray_candidates(
             asm,

@@ -314,3 +314,36 @@ fn analysis_by_synthesis_finds_a_brick_from_its_mask() {
     assert!(!timed_out && iou > 0.9, "iou {iou}");
     assert!(comp("3040b").same_placement(&pose.unwrap(), &Pose::new(3, [2, 4, -1])));
 }
+
+/// A primitive whose rotation classifier leans the wrong way: the mask decides when
+/// `rotation_by_mask` is on, the class alone when it is off.
+#[test]
+fn mask_overrules_a_hesitant_rotation_class() {
+    let mut after = Assembly::new();
+    after.add(comp("3001"), Pose::new(0, [0, 3, 0])).unwrap();
+    after.add(comp("3001"), Pose::new(1, [0, 6, 0])).unwrap();
+    let ids: Vec<u32> = after.instances().map(|(id, _)| id).collect();
+    let mut base = Assembly::new();
+    let first = after.instance(ids[0]).unwrap();
+    base.add(first.component.clone(), first.pose).unwrap();
+    let cam = camera_for(&after);
+    let mut types = oracle(&after, &ids[1..], &cam, 0.0);
+    // 3001 is 2-fold symmetric: classes 1 (yaw 0/2) and 2 (yaw 1/3); the truth is yaw 1
+    let mut rot = [0f32; 7];
+    rot[1] = 0.6;
+    rot[2] = 0.4;
+    types[0].detections[0].rotation = Some(rot);
+    let truth = after.instance(ids[1]).unwrap().pose;
+    let by_mask = infer_step(&base, &cam, W, W, &types, &InferOptions::default()).unwrap();
+    let pose = by_mask[0].pose.unwrap();
+    assert!(
+        comp("3001").same_placement(&pose, &truth),
+        "{pose:?} vs {truth:?}"
+    );
+    let opts = InferOptions {
+        rotation_by_mask: false,
+        ..InferOptions::default()
+    };
+    let by_class = infer_step(&base, &cam, W, W, &types, &opts).unwrap();
+    assert_eq!(by_class[0].pose.unwrap().yaw % 2, 0);
+}

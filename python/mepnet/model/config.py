@@ -23,8 +23,6 @@ class ModelConfig:
     comp_grid: tuple[int, int, int] = (24, 24, 24)
     #: Channels of the 3D state features (C1) projected into the image.
     state_channels: int = 8
-    #: Depth samples along each ray of the first-hit projection.
-    depth_samples: int = 48
     #: Channels of a component embedding (C2).
     comp_channels: int = 32
     #: Component type slots (K_max).
@@ -58,7 +56,6 @@ class ModelConfig:
             base_grid=(128, 96, 128),
             comp_grid=(32, 32, 32),
             state_channels=16,
-            depth_samples=96,
             comp_channels=64,
             hg_channels=256,
             hg_stacks=2,
@@ -74,7 +71,6 @@ class ModelConfig:
             base_grid=(32, 16, 32),
             comp_grid=(16, 16, 16),
             state_channels=4,
-            depth_samples=16,
             comp_channels=8,
             hg_channels=16,
             hg_depth=2,

@@ -5,6 +5,7 @@ the peaks within the type's semantic mask."""
 
 from __future__ import annotations
 
+import sys
 from typing import Any
 
 import numpy as np
@@ -64,6 +65,18 @@ class MEPNetPredictor(Predictor):
     def __init__(self, model: MEPNet, cfg: ModelConfig):
         self.model = model
         self.cfg = cfg
+        self._sizes_noted: set[tuple[int, int]] = set()
+
+    def _note_size(self, ctx: StepContext) -> None:
+        """Say once per image size that the manual's images are resized for the detector."""
+        w, h = ctx.image_size
+        if (w, h) != (self.cfg.image_size, self.cfg.image_size) and (w, h) not in self._sizes_noted:
+            self._sizes_noted.add((w, h))
+            print(
+                f"mepnet: {w}x{h} step images are resized to the detector's "
+                f"{self.cfg.image_size}x{self.cfg.image_size} (keypoints are mapped back)",
+                file=sys.stderr,
+            )
 
     @torch.no_grad()
     def predict(self, ctx: StepContext) -> list[Prediction]:
@@ -72,22 +85,34 @@ class MEPNetPredictor(Predictor):
         try:
             build = ctx.truth
             k = build.steps.index(ctx.step)
-            sample = make_sample(
-                _ManualView(ctx), build, k, self.cfg, components=ctx.components, base=ctx.base
-            )
-            out = self.model(collate([sample]))
-            slots = ctx.step.components[: self.cfg.k_max]
+            self._note_size(ctx)
             w, h = ctx.image_size
-            dets = decode(out, [c.count for c in slots], self.cfg, w)
-            types = [
-                {
-                    "component": ctx.components[c.component],
-                    "count": c.count,
-                    "detections": d,
-                    "ref": c.component,
-                }
-                for c, d in zip(slots, dets, strict=True)
-            ]
+            types = []
+            # K_max component types per forward pass; a step with more takes several
+            n_types = len(ctx.step.components)
+            for first in range(0, n_types, self.cfg.k_max):
+                chunk = list(range(first, min(first + self.cfg.k_max, n_types)))
+                sample = make_sample(
+                    _ManualView(ctx),
+                    build,
+                    k,
+                    self.cfg,
+                    components=ctx.components,
+                    base=ctx.base,
+                    slot_types=chunk,
+                )
+                out = self.model(collate([sample]))
+                slots = [ctx.step.components[i] for i in chunk]
+                dets = decode(out, [c.count for c in slots], self.cfg, w)
+                types += [
+                    {
+                        "component": ctx.components[c.component],
+                        "count": c.count,
+                        "detections": d,
+                        "ref": c.component,
+                    }
+                    for c, d in zip(slots, dets, strict=True)
+                ]
             return run_stage2(ctx, types)
         finally:
             self.model.train(was_training)

@@ -1,9 +1,10 @@
 """The MEPNet network (paper §4.1), read top to bottom:
 
-1. State-manual encoder: 3D conv-BN-ReLU on the base shape's voxels; the feature volume is
-   resampled along camera rays (a differentiable spatial transform, trilinear ``grid_sample``),
-   composited front to back so each pixel takes the first occupied voxel it hits (soft first hit),
-   giving a 2D feature map that is concatenated with the image features.
+1. State-manual encoder: 3D conv-BN-ReLU on the base shape's voxels; each pixel gathers the
+   features of the first occupied voxel its camera ray hits (the transform into the camera frame,
+   found by rasterizing the base shape), giving a full-resolution 2D feature map that is
+   concatenated with the image, the rendered state maps (hit, depth, outlines, world
+   coordinates) and the camera planes.
 2. Component encoder: 3D convs + average pooling, one embedding per component type, K_max slots,
    zero padded.
 3. Hourglass: encoder to H/32, the tiled component embeddings concatenated at the bottleneck,
@@ -21,6 +22,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from mepnet.model.config import ModelConfig
+from mepnet.model.targets import STATE_MAPS
 
 
 def conv_bn(cin: int, cout: int, stride: int = 1, dims: int = 2) -> nn.Sequential:
@@ -48,75 +50,53 @@ class Residual(nn.Module):
 
 
 class StateEncoder(nn.Module):
-    """Base shape voxels -> 2D feature map in the camera frame (first-hit projection)."""
+    """Base shape voxels -> 2D feature map in the camera frame (first-hit projection).
 
-    def __init__(
-        self, *, channels: int, grid: tuple[int, int, int], depth_samples: int, out_size: int
-    ):
+    The 3D features of the first occupied voxel each pixel's ray hits are gathered into the
+    image: the per-pixel voxel index comes from rasterizing the base shape with the step's camera
+    (:func:`mepnet.model.targets.state_projection`, brickgeom's renderer), so the transform is
+    exact and the gather passes gradients to every voxel feature it reads."""
+
+    def __init__(self, *, channels: int):
         super().__init__()
-        self.grid = grid
-        self.depth_samples = depth_samples
-        self.out_size = out_size
-        self.convs = nn.Sequential(
-            conv_bn(1, channels, dims=3), conv_bn(channels, channels, dims=3)
-        )
+        self.convs = conv_bn(1, channels, dims=3)
 
-    def sample_rays(self, volume: torch.Tensor, cam: torch.Tensor) -> torch.Tensor:
-        """Resample ``volume`` (B, C, Z, Y, X) over the window along the camera rays of an
-        ``out_size`` image: (B, C, D, n, n), depth samples near to far."""
-        b = volume.shape[0]
-        dev, dt = volume.device, volume.dtype
-        gx, gy, gz = self.grid
-        n, d = self.out_size, self.depth_samples
-        rot = cam[:, :9].view(b, 3, 3)  # rows u (right), v (up), w (into the scene)
-        scale, trans = cam[:, 9], cam[:, 10:12]
-        # pixel centres of the output grid in NDC (y up)
-        lin = (torch.arange(n, device=dev, dtype=dt) + 0.5) / n * 2 - 1
-        ndc_y, ndc_x = torch.meshgrid(-lin, lin, indexing="ij")  # (n, n)
-        u = (ndc_x[None] - trans[:, 0, None, None]) / scale[:, None, None]  # (B, n, n) LDU
-        v = (ndc_y[None] - trans[:, 1, None, None]) / scale[:, None, None]
-        # depth range: the window's extent along the view direction
-        half = torch.tensor([gx * 5.0, gy * 4.0, gz * 5.0], device=dev, dtype=dt)
-        centre = torch.tensor([0.0, gy * 4.0, 0.0], device=dev, dtype=dt)
-        w_dir = rot[:, 2]  # (B, 3)
-        reach = (w_dir.abs() * half).sum(-1)  # (B,)
-        mid = (w_dir * centre).sum(-1)
-        t = torch.linspace(0, 1, d, device=dev, dtype=dt)
-        depth = (mid - reach)[:, None] + 2 * reach[:, None] * t[None]  # (B, D)
-        # world point = u r_u + v r_v + depth r_w (rows of an orthonormal rotation)
-        world = (
-            u[:, None, :, :, None] * rot[:, None, None, None, 0]
-            + v[:, None, :, :, None] * rot[:, None, None, None, 1]
-            + depth[:, :, None, None, None] * rot[:, None, None, None, 2]
-        )  # (B, D, n, n, 3) LDU
-        lattice = world / torch.tensor([10.0, 8.0, 10.0], device=dev, dtype=dt)
-        grid = torch.stack(
-            [
-                lattice[..., 0] / (gx / 2),
-                lattice[..., 1] / (gy / 2) - 1,
-                lattice[..., 2] / (gz / 2),
-            ],
-            dim=-1,
-        )  # normalised to [-1, 1] over the window; (x, y, z) index (W, H, D) of the volume
-        return F.grid_sample(
-            volume, grid, mode="bilinear", padding_mode="zeros", align_corners=False
-        )
+    def forward(self, vox: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
+        # vox: (B, 1, Z, Y, X) occupancy; index: (B, H, W) flat voxel index, -1 where no hit
+        b = vox.shape[0]
+        _, _, gz, gy, gx = vox.shape
+        # convolve only the box around what is occupied in the batch (the window is mostly
+        # empty; a hit voxel is always occupied, so always inside)
+        occ = vox[:, 0].amax(dim=0) > 0
+        if occ.any():
+            lo = [int(torch.nonzero(occ.any(dim=o)).min()) for o in ((1, 2), (0, 2), (0, 1))]
+            hi = [int(torch.nonzero(occ.any(dim=o)).max()) for o in ((1, 2), (0, 2), (0, 1))]
+        else:
+            lo, hi = [0, 0, 0], [0, 0, 0]
+        lo = [max(v - 1, 0) for v in lo]
+        hi = [min(v + 2, n) for v, n in zip(hi, (gz, gy, gx), strict=True)]
+        crop = vox[:, :, lo[0] : hi[0], lo[1] : hi[1], lo[2] : hi[2]]
+        feats = self.convs(crop).flatten(2)  # (B, C, z*y*x)
+        c = feats.shape[1]
+        cz, cy, cx = (h - v for h, v in zip(hi, lo, strict=True))
+        flat = index.flatten(1)  # (B, H*W)
+        hit = flat >= 0
+        f = flat.clamp(min=0)
+        z, y, x = f // (gy * gx) - lo[0], (f // gx) % gy - lo[1], f % gx - lo[2]
+        hit = hit & (z >= 0) & (z < cz) & (y >= 0) & (y < cy) & (x >= 0) & (x < cx)
+        local = torch.where(hit, (z * cy + y) * cx + x, torch.zeros_like(f))
+        g = feats.gather(2, local[:, None, :].expand(b, c, -1))
+        return (g * hit[:, None].to(g.dtype)).view(b, c, *index.shape[1:])
 
-    @staticmethod
-    def first_hit_weights(occupancy: torch.Tensor) -> torch.Tensor:
-        """Front-to-back compositing weights of sampled occupancy (B, 1, D, n, n): the soft
-        version of taking the first occupied voxel along each ray."""
-        alpha = occupancy.clamp(0, 1)
-        ones = torch.ones_like(alpha[:, :, :1])
-        transmittance = torch.cumprod(torch.cat([ones, 1 - alpha[:, :, :-1]], dim=2), dim=2)
-        return alpha * transmittance
 
-    def forward(self, vox: torch.Tensor, cam: torch.Tensor) -> torch.Tensor:
-        # vox: (B, 1, Z, Y, X) occupancy; cam: (B, 12) = rotation rows u, v, w (9), scale, tx, ty
-        feats = self.convs(vox)  # (B, C, Z, Y, X)
-        samples = self.sample_rays(torch.cat([vox, feats], dim=1), cam)  # (B, 1 + C, D, n, n)
-        weight = self.first_hit_weights(samples[:, :1])
-        return (weight * samples[:, 1:]).sum(dim=2)  # (B, C, n, n)
+def camera_planes(cam: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:
+    """The camera's image axes in world coordinates (rows u and v of its rotation) as constant
+    planes: the world frame the rotation classes are defined in."""
+    return cam[:, :6, None, None].expand(-1, -1, *size)
+
+
+#: Constant camera planes fed to the stem.
+CAMERA_PLANES = 6
 
 
 class ComponentEncoder(nn.Module):
@@ -182,27 +162,23 @@ class MEPNet(nn.Module):
         hg_stacks: int,
         hg_depth: int,
         state_channels: int,
-        base_grid: tuple[int, int, int],
-        depth_samples: int,
         comp_channels: int,
         k_max: int,
         emb_dim: int,
-        out_size: int,
     ):
         super().__init__()
         c = hg_channels
         self.k_max, self.emb_dim = k_max, emb_dim
-        self.state = StateEncoder(
-            channels=state_channels, grid=base_grid, depth_samples=depth_samples, out_size=out_size
-        )
+        self.state = StateEncoder(channels=state_channels)
         self.components = ComponentEncoder(channels=comp_channels)
-        # image stem: H -> H/2 -> H/4, then the projected state features join
+        # stem on the image, the rendered state maps, the projected state features and the
+        # camera planes, all at full resolution: H -> H/2 -> H/4
+        stem_in = in_channels + STATE_MAPS + state_channels + CAMERA_PLANES
         self.stem = nn.Sequential(
-            conv_bn(in_channels, c // 2, stride=2),
+            conv_bn(stem_in, c // 2, stride=2),
             conv_bn(c // 2, c, stride=2),
             Residual(channels=c),
         )
-        self.merge = nn.Sequential(nn.Conv2d(c + state_channels, c, 1), nn.ReLU(inplace=True))
         self.stacks = nn.ModuleList(
             [
                 Hourglass(channels=c, depth=hg_depth, cond_channels=k_max * comp_channels)
@@ -227,12 +203,10 @@ class MEPNet(nn.Module):
     def forward(self, batch: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
         image = batch["image"]  # (B, 4, H, W)
         b = image.shape[0]
-        state = self.state(batch["base_voxels"], batch["camera"])  # (B, C1, h, w)
+        state = self.state(batch["base_voxels"], batch["state_index"])  # (B, C1, H, W)
         emb = self.components(batch["comp_voxels"], batch["comp_valid"])  # (B, K, C2)
-        x = self.stem(image)  # (B, c, h, w)
-        if state.shape[2:] != x.shape[2:]:
-            state = F.interpolate(state, size=x.shape[2:], mode="bilinear", align_corners=False)
-        x = self.merge(torch.cat([x, state], dim=1))
+        planes = camera_planes(batch["camera"], image.shape[2:])
+        x = self.stem(torch.cat([image, batch["state_maps"], state, planes], dim=1))  # (B, c, h, w)
         cond = emb.flatten(1)  # (B, K * C2)
         for i, hg in enumerate(self.stacks):
             y = hg(x, cond)
@@ -256,10 +230,7 @@ def build_model(cfg: ModelConfig) -> MEPNet:
         hg_stacks=cfg.hg_stacks,
         hg_depth=cfg.hg_depth,
         state_channels=cfg.state_channels,
-        base_grid=cfg.base_grid,
-        depth_samples=cfg.depth_samples,
         comp_channels=cfg.comp_channels,
         k_max=cfg.k_max,
         emb_dim=cfg.emb_dim,
-        out_size=cfg.out_size,
     )

@@ -10,6 +10,7 @@ keeps image, camera and keypoints consistent.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -42,13 +43,7 @@ def edge_channel(rgb: np.ndarray) -> np.ndarray:
 
 def camera_vector(camera: dict[str, Any]) -> np.ndarray:
     """(12,) rotation rows u, v, w, scale, tx, ty."""
-    cam = _bg.Camera(
-        camera["elevation"],
-        camera["azimuth"],
-        camera["roll"],
-        camera["scale"],
-        tuple(camera["translation"]),
-    )
+    cam = make_camera(camera)
     return np.concatenate(
         [cam.rotation().ravel(), [camera["scale"]], camera["translation"]]
     ).astype(np.float32)
@@ -74,6 +69,88 @@ def component_voxels(comp: _bg.Component, grid: tuple[int, int, int]) -> np.ndar
     return out
 
 
+#: Channels of the rendered state maps (see :func:`state_projection`).
+STATE_MAPS = 6
+
+#: LDU per lattice cell (x, y, z).
+_UNIT = np.array([10.0, 8.0, 10.0])
+
+
+def make_camera(camera: dict[str, Any]) -> _bg.Camera:
+    """The brickgeom camera of a manual step's camera dict."""
+    return _bg.Camera(
+        camera["elevation"],
+        camera["azimuth"],
+        camera["roll"],
+        camera["scale"],
+        tuple(camera["translation"]),
+    )
+
+
+def state_projection(
+    asm: _bg.Assembly, camera: dict[str, Any], size: int, grid: tuple[int, int, int]
+) -> tuple[np.ndarray, np.ndarray]:
+    """The first-hit projection of the base shape into the camera frame, at ``size`` pixels.
+
+    brickgeom rasterizes the base shape (its real meshes, studs included) and gives the depth
+    of the first surface each pixel's ray hits; the hit point is lifted back to the world and
+    walked a little further along the ray to the first occupied voxel of the config's window.
+    Returns the flat index of that voxel in the (Z, Y, X) window per pixel (-1 where the ray
+    hits nothing) -- the network gathers its 3D features there -- and ``STATE_MAPS`` maps: hit,
+    depth (relative to the nearest hit, /100 LDU), the outlines of the base's parts, and the
+    hit point's world coordinates (/100 LDU)."""
+    gx, gy, gz = grid
+    maps = np.zeros((STATE_MAPS, size, size), np.float32)
+    index = np.full((size, size), -1, np.int64)
+    if len(asm) == 0:
+        return index, maps
+    cam = make_camera(camera)
+    r = _bg.render(asm, cam, size, size, line_px=0.0)
+    depth, ids = r["depth"], r["ids"]
+    hit = np.isfinite(depth)
+    if not hit.any():
+        return index, maps
+    rows, cols = np.nonzero(hit)
+    ndc_x = (cols + 0.5) / size * 2 - 1
+    ndc_y = 1 - (rows + 0.5) / size * 2
+    tx, ty = camera["translation"]
+    u = (ndc_x - tx) / camera["scale"]
+    v = (ndc_y - ty) / camera["scale"]
+    rot = cam.rotation()
+    d = depth[rows, cols].astype(np.float64)
+    surface = u[:, None] * rot[0] + v[:, None] * rot[1] + d[:, None] * rot[2]  # (n, 3) LDU
+    occ, _ = asm.occupancy((-gx // 2, 0, -gz // 2), (gx // 2 - 1, gy - 1, gz // 2 - 1))
+    lo = np.array([-gx // 2, 0, -gz // 2])
+    found = np.full(len(d), -1, np.int64)
+    # studs stand 4 LDU above their voxel and the surface sits on a cell boundary: step into
+    # the solid along the ray until an occupied voxel turns up (or give up after 16 LDU)
+    for step in np.arange(0.5, 16.0, 2.0):
+        todo = found < 0
+        if not todo.any():
+            break
+        cell = np.floor((surface[todo] + step * rot[2]) / _UNIT).astype(np.int64) - lo
+        inside = np.all((cell >= 0) & (cell < np.array(grid)), axis=1)
+        ok = np.zeros(len(cell), bool)
+        c = cell[inside]
+        ok[inside] = occ[c[:, 0], c[:, 1], c[:, 2]] > 0
+        flat = (cell[:, 2] * gy + cell[:, 1]) * gx + cell[:, 0]
+        idx = np.nonzero(todo)[0]
+        found[idx[ok]] = flat[ok]
+    index[rows, cols] = found
+    maps[0][hit] = 1.0
+    maps[1][hit] = (d - d.min()) / 100.0
+    pad = np.pad(ids, 1, mode="edge")
+    outline = (
+        (pad[1:-1, 1:-1] != pad[:-2, 1:-1])
+        | (pad[1:-1, 1:-1] != pad[2:, 1:-1])
+        | (pad[1:-1, 1:-1] != pad[1:-1, :-2])
+        | (pad[1:-1, 1:-1] != pad[1:-1, 2:])
+    )
+    maps[2][outline] = 1.0
+    maps[3:6][:, rows, cols] = (surface / 100.0).T
+    return index, maps
+
+
 def _gaussian(heat: np.ndarray, cx: float, cy: float, sigma: float) -> None:
     h, w = heat.shape
     ys, xs = np.arange(h)[:, None] + 0.5, np.arange(w)[None, :] + 0.5
@@ -94,12 +171,18 @@ def make_sample(
     rng: np.random.Generator | None = None,
     components: dict[ComponentRef, _bg.Component] | None = None,
     base: _bg.Assembly | None = None,
+    slot_types: Sequence[int] | None = None,
 ) -> StepSample:
     """Inputs and targets of step ``step_index`` of ``build``. ``components`` and ``base``
-    default to the ground truth (the predictor passes its own)."""
+    default to the ground truth (the predictor passes its own). ``slot_types``: which of the
+    step's component types fill the K_max slots (default: the first K_max); a step with more
+    types takes several samples."""
     rng = rng or np.random.default_rng(0)
     step = build.steps[step_index]
-    slots = step_slots(step)[: cfg.k_max]
+    types = list(slot_types) if slot_types is not None else list(range(len(step.components)))
+    if len(types) > cfg.k_max:
+        types = types[: cfg.k_max]
+    slots = [step.components[i].component for i in types]
     comps = components or {}
     rgb = step.image()
     ids = step.ids()
@@ -139,7 +222,7 @@ def make_sample(
         comp = comps.get(ref) or manual.component(ref)
         comp_vox[s, 0] = component_voxels(comp, cfg.comp_grid)
         comp_valid[s] = 1.0
-        sc = step.components[s]
+        sc = step.components[types[s]]
         for iid in sc.instances:
             if k_inst >= MAX_INSTANCES:
                 break
@@ -157,9 +240,12 @@ def make_sample(
             inst_rot[k_inst] = _bg.rotation_class(comp.symmetry, build.instances[iid].yaw)
             inst_valid[k_inst] = 1.0
             k_inst += 1
+    state_index, state_maps = state_projection(base, cam, cfg.image_size, cfg.base_grid)
     t = {
         "image": torch.from_numpy(image),
         "base_voxels": torch.from_numpy(base_voxels(base, cfg.base_grid))[None],
+        "state_index": torch.from_numpy(state_index),
+        "state_maps": torch.from_numpy(state_maps),
         "camera": torch.from_numpy(camera_vector(cam)),
         "comp_voxels": torch.from_numpy(comp_vox),
         "comp_valid": torch.from_numpy(comp_valid),
