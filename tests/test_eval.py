@@ -81,11 +81,21 @@ def test_abys_finds_poses_within_its_limit(manuals: Path):
     assert m["component_acc"] > 0.8
 
 
+def test_synthesis_lifts_from_the_change_alone(manuals: Path):
+    one = sorted(manuals.iterdir())[0]
+    m = evaluate(one, make_predictor("synthesis"), cd_points=2000, progress=False)
+    assert m["n_steps"] > 5
+    assert m["component_acc"] > 0.85, m
+
+
 def test_bad_input_exits_2(tmp_path: Path, manuals: Path):
     cases = [
         (["--data", str(tmp_path / "missing"), "--predictor", "oracle"], "not a folder"),
         (["--data", str(tmp_path), "--predictor", "oracle"], "no manual folders"),
-        (["--data", str(manuals), "--predictor", "mepnet"], "--weights"),
+        (
+            ["--data", str(manuals), "--predictor", "mepnet", "--weights", str(tmp_path / "w")],
+            "weights not found",
+        ),
         (["--data", str(manuals), "--predictor", "direct3d"], "Direct3D"),
         (["--data", str(manuals), "--predictor", "oracle-noisy", "--sigma", "-1"], "--sigma"),
     ]

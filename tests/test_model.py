@@ -15,7 +15,8 @@ from mepnet.model.config import ModelConfig
 from mepnet.model.decode import decode
 from mepnet.model.losses import total_loss
 from mepnet.model.net import StateEncoder, build_model
-from mepnet.model.targets import base_voxels, collate, make_sample, state_projection
+from mepnet.model.targets import base_voxels, collate, make_sample
+from mepnet.state import state_projection
 
 
 @pytest.fixture(scope="module")
@@ -42,6 +43,9 @@ def test_first_hit_projection_lands_on_the_voxels_the_rays_hit():
     index, maps = state_projection(asm, cdict, n, cfg.base_grid)
     silhouette = _bg.render(asm, cam, n, n)["ids"] >= 0
     assert np.array_equal(maps[0] > 0, silhouette)
+    # the rendered state: white paper around the shape, the parts' colours on it
+    assert np.allclose(maps[6:9][:, ~silhouette], 1.0)
+    assert maps[6:9][:, silhouette].mean() < 0.9
     # nearly every ray that hits a part finds its voxel; misses are stud tops at most
     assert (index >= 0).sum() >= 0.95 * silhouette.sum()
     assert not (index[~silhouette] >= 0).any()
@@ -135,3 +139,21 @@ def test_config_round_trip_and_errors(tmp_path: Path):
 
     p.write_text(json.dumps(ModelConfig.tiny().to_dict()))
     assert ModelConfig.named(str(p)) == ModelConfig.tiny()
+
+
+def test_change_map_marks_what_the_step_adds(manual):
+    from mepnet.state import change_map
+
+    cfg = ModelConfig.tiny()
+    ious: list[float] = []
+    for k, step in enumerate(manual.main.steps):
+        s = make_sample(manual, manual.main, k, cfg)
+        image = s.tensors["image"][:3].numpy()
+        state = s.tensors["state_maps"][6:9].numpy()
+        new = np.isin(step.ids(), step.instance_ids)
+        for picture in (image, np.clip(image * 0.8 + 0.05, 0, 1)):  # also printed paler
+            changed = change_map(picture, state) > 0.15
+            ious.append((changed & new).sum() / max((changed | new).sum(), 1))
+    # (64 px images: small parts are a few pixels, their outlines a good share of them)
+    assert np.median(ious) > 0.85, ious
+    assert np.mean(np.array(ious) > 0.5) > 0.85, ious

@@ -301,6 +301,19 @@ def test_pickle_checkpoint_is_refused(
         one_error_line(capsys, "checkpoint.safetensors", "pickle")
 
 
+def test_header_length_starting_with_0x80_is_not_a_pickle(tmp_path: Path):
+    """A safetensors header of 0x..80 bytes begins with the byte a pickle begins with."""
+    t = {"w": torch.arange(3, dtype=torch.float32)}
+    for pad in range(0, 300):
+        write_safetensors(tmp_path / "x.safetensors", t, {"pad": "x" * pad})
+        if (tmp_path / "x.safetensors").read_bytes()[0] == 0x80:
+            break
+    else:
+        raise AssertionError("no padding gave a header length ending in 0x80")
+    got, meta = read_safetensors(tmp_path / "x.safetensors")
+    assert torch.equal(got["w"], t["w"]) and meta["pad"] == "x" * pad
+
+
 def test_corrupt_and_incomplete_checkpoints_are_refused(
     finished: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ):

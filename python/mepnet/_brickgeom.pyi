@@ -172,6 +172,16 @@ def infer_step(
     tie_px: float = 2.5,
     rotation_by_mask: bool = True,
 ) -> list[dict[str, Any]]: ...
+def abys_ranked(
+    base: Assembly,
+    camera: Camera,
+    width: int,
+    height: int,
+    component: Component,
+    mask: npt.NDArray[np.bool_],
+    k: int = 8,
+    time_limit_s: float = 60.0,
+) -> tuple[list[tuple[int, _Int3, float]], bool]: ...
 def abys_step(
     base: Assembly,
     camera: Camera,

@@ -82,9 +82,14 @@ def atomic_write_json(path: str | os.PathLike[str], doc: Any) -> None:
     atomic_write_bytes(path, (format_json(doc) + "\n").encode())
 
 
-def _check_not_pickle(path: Path, head: bytes) -> None:
+def _check_not_pickle(path: Path, data: bytes) -> None:
+    # A safetensors file: an 8-byte little-endian header length, then a JSON header ("{"). Its
+    # first byte can be 0x80 (a header of 0x..80 bytes), so that layout is checked first.
+    n = int.from_bytes(data[:8], "little") if len(data) >= 8 else -1
+    if 0 < n <= len(data) - 8 and data[8:9] == b"{":
+        return
     # torch.save writes a zip archive ("PK"); a bare pickle starts with the PROTO opcode 0x80.
-    if head[:2] == b"PK" or head[:1] == b"\x80":
+    if data[:2] == b"PK" or data[:1] == b"\x80":
         raise CheckpointError(
             f"{path}: a pickle / torch.save file, not safetensors (pickles are never loaded)"
         )
@@ -102,7 +107,7 @@ def read_safetensors(
         raise CheckpointError(f"{path}: no such file") from None
     except OSError as e:
         raise CheckpointError(f"{path}: cannot read ({e.strerror or e})") from None
-    _check_not_pickle(path, data[:8])
+    _check_not_pickle(path, data)
     if len(data) < 8:
         raise CheckpointError(f"{path}: truncated (not a safetensors file)")
     header_len = int.from_bytes(data[:8], "little")
@@ -220,12 +225,15 @@ def load_model(path: str | os.PathLike[str], device: str | torch.device = "cpu")
     return model.to(device).eval(), cfg
 
 
-def load_predictor(path: str | os.PathLike[str], device: str | torch.device = "cpu") -> Any:
-    """The ``mepnet`` predictor (detector + stage 2) with the weights of ``model.safetensors``."""
+def load_predictor(
+    path: str | os.PathLike[str], device: str | torch.device = "cpu", lift: str = "synthesis"
+) -> Any:
+    """The ``mepnet`` predictor (detector + stage 2, lifting by ``synthesis`` or ``keypoint``)
+    with the weights of ``model.safetensors``."""
     from mepnet.model.decode import MEPNetPredictor
 
     model, cfg = load_model(path, device)
-    return MEPNetPredictor(model, cfg)
+    return MEPNetPredictor(model, cfg, lift=lift)
 
 
 def load_state_strict(model: torch.nn.Module, tensors: dict[str, torch.Tensor], path: Path) -> None:

@@ -263,6 +263,19 @@ def _build_from_json(d: dict[str, Any], folder: Path, size: tuple[int, int] | No
     return Build(instances=instances, steps=steps)
 
 
+def step_colour(build: Build, step: Step, ref: ComponentRef) -> int:
+    """The colour the manual gives a component type in a step (its parts callout): the colour of
+    the step's first instance of that type (16, the main colour, when there is none)."""
+    return next(
+        (
+            build.instances[v.id].colour
+            for v in step.views
+            if build.instances[v.id].component == ref
+        ),
+        16,
+    )
+
+
 def load_manual(folder: str | os.PathLike[str]) -> Manual:
     """Read a manual folder. Raises :class:`ManualFormatError` naming the problem."""
     folder = Path(folder)

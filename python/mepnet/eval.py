@@ -46,6 +46,7 @@ from mepnet.data import (
     ManualFormatError,
     iter_manual_dirs,
     load_manual,
+    step_colour,
 )
 from mepnet.geom import BrickGeomError, rotate_lattice
 from mepnet.predictors import (
@@ -236,13 +237,16 @@ def _run_build(
             for p in preds:
                 if p.t is not None:
                     try:
-                        base.add(comps[p.component], p.yaw, p.t)
+                        base.add(
+                            comps[p.component], p.yaw, p.t, step_colour(build, step, p.component)
+                        )
                         placed.append((comps[p.component], p.yaw, p.t))
                     except BrickGeomError:
                         pass  # stage 2 never collides; another predictor might
         else:
-            for ref, y, t in gt:
-                base.add(comps[ref], y, t)
+            for v in step.views:
+                inst = build.instances[v.id]
+                base.add(comps[inst.component], inst.yaw, inst.t, inst.colour)
     return placed, wrong
 
 
@@ -375,7 +379,17 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=0, help="noise seed for oracle-noisy")
     ap.add_argument("--time-limit", type=float, default=60.0, help="abys: seconds per component")
     ap.add_argument("--cd-points", type=int, default=10_000, help="points sampled per surface")
-    ap.add_argument("--weights", help="detector weights (model.safetensors) for --predictor mepnet")
+    ap.add_argument(
+        "--weights",
+        help="detector weights (model.safetensors) for --predictor mepnet (default: the shipped slim weights)",
+    )
+    ap.add_argument(
+        "--lift",
+        choices=("synthesis", "keypoint"),
+        default="synthesis",
+        help="mepnet: lift detections to 3D by synthesis from the masks (default) or by the "
+        "paper's keypoint ray search",
+    )
     ap.add_argument("--no-progress", action="store_true")
     args = ap.parse_args(argv)
     try:
@@ -384,7 +398,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.sigma < 0 or args.cd_points < 1 or args.time_limit <= 0:
             raise ValueError("--sigma must be >= 0, --cd-points >= 1, --time-limit > 0")
         predictor = make_predictor(
-            args.predictor, args.sigma, args.seed, args.time_limit, args.weights
+            args.predictor, args.sigma, args.seed, args.time_limit, args.weights, args.lift
         )
         result = evaluate(
             args.data, predictor, args.autoregressive, args.cd_points, not args.no_progress

@@ -16,7 +16,7 @@ import numpy as np
 
 from mepnet import _brickgeom as _bg
 from mepnet import ldraw
-from mepnet.data import Build, ComponentRef, Manual
+from mepnet.data import Build, ComponentRef, Manual, step_colour
 from mepnet.geom import BrickGeomError, rotate_lattice
 from mepnet.predictors import Prediction, Predictor, StepContext
 
@@ -67,14 +67,7 @@ def run_build(
                 rec["correct"] = any(
                     r == p.component and comp.same_placement(y, t, p.yaw, p.t) for r, y, t in truth
                 )
-                colour = next(
-                    (
-                        build.instances[v.id].colour
-                        for v in step.views
-                        if build.instances[v.id].component == p.component
-                    ),
-                    16,
-                )
+                colour = step_colour(build, step, p.component)
                 try:
                     base.add(comp, p.yaw, p.t, colour)
                     placed.append((p.component, p.yaw, p.t, colour))

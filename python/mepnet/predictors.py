@@ -7,6 +7,8 @@ components the step adds), return a pose for every instance.
 - ``abys``: pure analysis-by-synthesis (the paper's ablation): every valid pose of each
   component rasterized over the current shape and scored by mask IoU, with a per-component
   time limit.
+- ``synthesis``: stage 2 by synthesis without a detector (:mod:`mepnet.lift`): the change
+  between the picture and the rendered base shape, the callout colours and the geometry.
 
 The detector (``mepnet``) and the Direct3D baseline plug in by subclassing :class:`Predictor`.
 """
@@ -179,7 +181,7 @@ class AbysPredictor(Predictor):
         return preds
 
 
-PREDICTORS = ("oracle", "oracle-noisy", "abys", "mepnet", "direct3d")
+PREDICTORS = ("oracle", "oracle-noisy", "abys", "synthesis", "mepnet", "direct3d")
 
 
 def make_predictor(
@@ -188,22 +190,32 @@ def make_predictor(
     seed: int = 0,
     time_limit_s: float = 60.0,
     weights: str | None = None,
+    lift: str = "synthesis",
 ) -> Predictor:
-    """A predictor by name (``mepnet`` needs ``weights``, a ``model.safetensors``)."""
+    """A predictor by name (``mepnet`` takes ``weights``, a ``model.safetensors``; default: the
+    shipped slim weights)."""
     if name == "oracle":
         return OraclePredictor(0.0, seed)
     if name == "oracle-noisy":
         return OraclePredictor(sigma, seed)
     if name == "abys":
         return AbysPredictor(time_limit_s)
+    if name == "synthesis":
+        from mepnet.lift import SynthesisPredictor
+
+        return SynthesisPredictor(min(time_limit_s, 10.0))
     if name == "mepnet":
-        if weights is None:
-            raise ValueError(
-                "predictor 'mepnet' needs --weights MODEL.safetensors (no trained weights ship yet)"
-            )
+        from importlib import resources
+        from pathlib import Path
+
         from mepnet.checkpoint import load_predictor
 
-        return load_predictor(weights)
+        if weights is None:
+            weights = str(resources.files("mepnet") / "data" / "weights" / "slim.safetensors")
+        if not Path(weights).is_file():
+            raise ValueError(f"{weights}: detector weights not found")
+
+        return load_predictor(weights, lift=lift)
     if name == "direct3d":
         raise ValueError(
             "predictor 'direct3d' (the Direct3D baseline) is not part of this build yet"

@@ -1,7 +1,7 @@
 //! Stage 2 (pose inference) and the analysis-by-synthesis baseline.
 
 use brickgeom::infer::{
-    abys_step, infer_step, rotation_class, Detection, InferOptions, TypeDetections,
+    abys_ranked, abys_step, infer_step, rotation_class, Detection, InferOptions, TypeDetections,
 };
 use numpy::PyReadonlyArray2;
 use pyo3::exceptions::PyValueError;
@@ -170,9 +170,47 @@ fn abys_step_py<'py>(
         .collect())
 }
 
+/// The `k` valid placements of `component` on `base` whose visible silhouettes best match
+/// `mask` (H, W) bool by IoU, best first: `([(yaw, t, iou), ...], timed_out)`.
+#[pyfunction(name = "abys_ranked")]
+#[pyo3(signature = (base, camera, width, height, component, mask, k=8, time_limit_s=60.0))]
+#[allow(clippy::too_many_arguments, clippy::type_complexity)]
+fn abys_ranked_py<'py>(
+    py: Python<'py>,
+    base: &PyAssembly,
+    camera: &PyCamera,
+    width: u32,
+    height: u32,
+    component: Bound<'py, PyComponent>,
+    mask: Bound<'py, PyAny>,
+    k: usize,
+    time_limit_s: f64,
+) -> PyResult<(Vec<(u8, (i32, i32, i32), f64)>, bool)> {
+    if time_limit_s.is_nan() || time_limit_s <= 0.0 {
+        return Err(PyValueError::new_err(format!(
+            "time limit must be positive, got {time_limit_s}"
+        )));
+    }
+    let m = mask_vec(&mask, width, height, "mask")?;
+    let comp = component.get().inner.clone();
+    let asm = &base.inner;
+    let cam = camera.inner;
+    let (ranked, timed_out) = py
+        .detach(|| abys_ranked(asm, &comp, &cam, width, height, &m, k, time_limit_s))
+        .py()?;
+    Ok((
+        ranked
+            .into_iter()
+            .map(|(p, iou)| (p.yaw, (p.t[0], p.t[1], p.t[2]), iou))
+            .collect(),
+        timed_out,
+    ))
+}
+
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(infer_step_py, m)?)?;
     m.add_function(wrap_pyfunction!(abys_step_py, m)?)?;
+    m.add_function(wrap_pyfunction!(abys_ranked_py, m)?)?;
     m.add_function(wrap_pyfunction!(rotation_class_py, m)?)?;
     Ok(())
 }

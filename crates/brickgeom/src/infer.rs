@@ -568,56 +568,77 @@ pub fn abys_step(
     instances: &[(Arc<Component>, Vec<bool>)],
     time_limit_s: f64,
 ) -> Result<Vec<(Option<Pose>, f64, bool)>> {
-    camera.validate()?;
-    let n_px = width as usize * height as usize;
     let mut asm = base.clone();
     let mut out = Vec::new();
-    for (k, (comp, mask)) in instances.iter().enumerate() {
-        if mask.len() != n_px {
-            return Err(BrickGeomError::InvalidArgument(format!(
-                "instance {k}: mask has {} pixels, the image {width}x{height} has {n_px}",
-                mask.len()
-            )));
-        }
-        let start = Instant::now();
-        let depth = base_depth(&asm, camera, width, height)?;
-        let target = MaskTarget::new(width, height, depth, mask.clone())?;
-        let mut best: Option<(f64, Pose)> = None;
-        let mut timed_out = false;
-        for yaw in 0..4u8 {
-            let ground = if asm.is_empty() {
-                GroundSearch::Region {
-                    x0: -40,
-                    x1: 40,
-                    z0: -40,
-                    z1: 40,
-                }
-            } else {
-                GroundSearch::Auto
-            };
-            let cands = asm.candidates(comp, yaw, ground)?;
-            // Score in parallel, in chunks so the time limit is checked between chunks.
-            for chunk in cands.chunks(256) {
-                if start.elapsed().as_secs_f64() > time_limit_s {
-                    timed_out = true;
-                    break;
-                }
-                let scores: Vec<Result<(f64, Pose)>> = chunk
-                    .par_iter()
-                    .map(|c| Ok((pose_iou(comp, &c.pose, camera, &target)?, c.pose)))
-                    .collect();
-                for s in scores {
-                    let (iou, pose) = s?;
-                    if best.is_none_or(|(b, bp)| iou > b || (iou == b && pose < bp)) {
-                        best = Some((iou, pose));
-                    }
-                }
-            }
-        }
-        if let Some((_, pose)) = best {
+    for (comp, mask) in instances {
+        let (ranked, timed_out) =
+            abys_ranked(&asm, comp, camera, width, height, mask, 1, time_limit_s)?;
+        let best = ranked.first().copied();
+        if let Some((pose, _)) = best {
             asm.add(comp.clone(), pose)?;
         }
-        out.push((best.map(|b| b.1), best.map_or(0.0, |b| b.0), timed_out));
+        out.push((best.map(|b| b.0), best.map_or(0.0, |b| b.1), timed_out));
     }
     Ok(out)
+}
+
+/// The `k` valid placements of `comp` on `base` whose visible silhouettes best match `mask`
+/// (IoU), best first (ties: smaller pose), and whether the time limit cut the search short.
+#[allow(clippy::too_many_arguments)]
+pub fn abys_ranked(
+    base: &Assembly,
+    comp: &Arc<Component>,
+    camera: &Camera,
+    width: u32,
+    height: u32,
+    mask: &[bool],
+    k: usize,
+    time_limit_s: f64,
+) -> Result<(Vec<(Pose, f64)>, bool)> {
+    camera.validate()?;
+    let n_px = width as usize * height as usize;
+    if mask.len() != n_px {
+        return Err(BrickGeomError::InvalidArgument(format!(
+            "mask has {} pixels, the image {width}x{height} has {n_px}",
+            mask.len()
+        )));
+    }
+    let start = Instant::now();
+    let depth = base_depth(base, camera, width, height)?;
+    let target = MaskTarget::new(width, height, depth, mask.to_vec())?;
+    let mut scored: Vec<(f64, Pose)> = Vec::new();
+    let mut timed_out = false;
+    for yaw in 0..4u8 {
+        let ground = if base.is_empty() {
+            GroundSearch::Region {
+                x0: -40,
+                x1: 40,
+                z0: -40,
+                z1: 40,
+            }
+        } else {
+            GroundSearch::Auto
+        };
+        let cands = base.candidates(comp, yaw, ground)?;
+        // Score in parallel, in chunks so the time limit is checked between chunks.
+        for chunk in cands.chunks(256) {
+            if start.elapsed().as_secs_f64() > time_limit_s {
+                timed_out = true;
+                break;
+            }
+            let scores: Vec<Result<(f64, Pose)>> = chunk
+                .par_iter()
+                .map(|c| Ok((pose_iou(comp, &c.pose, camera, &target)?, c.pose)))
+                .collect();
+            for sc in scores {
+                scored.push(sc?);
+            }
+        }
+    }
+    scored.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
+    scored.truncate(k);
+    Ok((
+        scored.into_iter().map(|(iou, p)| (p, iou)).collect(),
+        timed_out,
+    ))
 }

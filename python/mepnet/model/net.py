@@ -22,7 +22,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from mepnet.model.config import ModelConfig
-from mepnet.model.targets import STATE_MAPS
+from mepnet.state import STATE_MAPS
 
 
 def conv_bn(cin: int, cout: int, stride: int = 1, dims: int = 2) -> nn.Sequential:

@@ -21,6 +21,7 @@ import torch.nn.functional as F
 from mepnet import _brickgeom as _bg
 from mepnet.data import Build, ComponentRef, Manual
 from mepnet.model.config import ModelConfig
+from mepnet.state import change_map, make_camera, state_projection
 
 #: Largest number of instances a step can add (the generator's limit).
 MAX_INSTANCES = 10
@@ -67,88 +68,6 @@ def component_voxels(comp: _bg.Component, grid: tuple[int, int, int]) -> np.ndar
     idx = idx[keep]
     out[idx[:, 2], idx[:, 1], idx[:, 0]] = 1.0
     return out
-
-
-#: Channels of the rendered state maps (see :func:`state_projection`).
-STATE_MAPS = 6
-
-#: LDU per lattice cell (x, y, z).
-_UNIT = np.array([10.0, 8.0, 10.0])
-
-
-def make_camera(camera: dict[str, Any]) -> _bg.Camera:
-    """The brickgeom camera of a manual step's camera dict."""
-    return _bg.Camera(
-        camera["elevation"],
-        camera["azimuth"],
-        camera["roll"],
-        camera["scale"],
-        tuple(camera["translation"]),
-    )
-
-
-def state_projection(
-    asm: _bg.Assembly, camera: dict[str, Any], size: int, grid: tuple[int, int, int]
-) -> tuple[np.ndarray, np.ndarray]:
-    """The first-hit projection of the base shape into the camera frame, at ``size`` pixels.
-
-    brickgeom rasterizes the base shape (its real meshes, studs included) and gives the depth
-    of the first surface each pixel's ray hits; the hit point is lifted back to the world and
-    walked a little further along the ray to the first occupied voxel of the config's window.
-    Returns the flat index of that voxel in the (Z, Y, X) window per pixel (-1 where the ray
-    hits nothing) -- the network gathers its 3D features there -- and ``STATE_MAPS`` maps: hit,
-    depth (relative to the nearest hit, /100 LDU), the outlines of the base's parts, and the
-    hit point's world coordinates (/100 LDU)."""
-    gx, gy, gz = grid
-    maps = np.zeros((STATE_MAPS, size, size), np.float32)
-    index = np.full((size, size), -1, np.int64)
-    if len(asm) == 0:
-        return index, maps
-    cam = make_camera(camera)
-    r = _bg.render(asm, cam, size, size, line_px=0.0)
-    depth, ids = r["depth"], r["ids"]
-    hit = np.isfinite(depth)
-    if not hit.any():
-        return index, maps
-    rows, cols = np.nonzero(hit)
-    ndc_x = (cols + 0.5) / size * 2 - 1
-    ndc_y = 1 - (rows + 0.5) / size * 2
-    tx, ty = camera["translation"]
-    u = (ndc_x - tx) / camera["scale"]
-    v = (ndc_y - ty) / camera["scale"]
-    rot = cam.rotation()
-    d = depth[rows, cols].astype(np.float64)
-    surface = u[:, None] * rot[0] + v[:, None] * rot[1] + d[:, None] * rot[2]  # (n, 3) LDU
-    occ, _ = asm.occupancy((-gx // 2, 0, -gz // 2), (gx // 2 - 1, gy - 1, gz // 2 - 1))
-    lo = np.array([-gx // 2, 0, -gz // 2])
-    found = np.full(len(d), -1, np.int64)
-    # studs stand 4 LDU above their voxel and the surface sits on a cell boundary: step into
-    # the solid along the ray until an occupied voxel turns up (or give up after 16 LDU)
-    for step in np.arange(0.5, 16.0, 2.0):
-        todo = found < 0
-        if not todo.any():
-            break
-        cell = np.floor((surface[todo] + step * rot[2]) / _UNIT).astype(np.int64) - lo
-        inside = np.all((cell >= 0) & (cell < np.array(grid)), axis=1)
-        ok = np.zeros(len(cell), bool)
-        c = cell[inside]
-        ok[inside] = occ[c[:, 0], c[:, 1], c[:, 2]] > 0
-        flat = (cell[:, 2] * gy + cell[:, 1]) * gx + cell[:, 0]
-        idx = np.nonzero(todo)[0]
-        found[idx[ok]] = flat[ok]
-    index[rows, cols] = found
-    maps[0][hit] = 1.0
-    maps[1][hit] = (d - d.min()) / 100.0
-    pad = np.pad(ids, 1, mode="edge")
-    outline = (
-        (pad[1:-1, 1:-1] != pad[:-2, 1:-1])
-        | (pad[1:-1, 1:-1] != pad[2:, 1:-1])
-        | (pad[1:-1, 1:-1] != pad[1:-1, :-2])
-        | (pad[1:-1, 1:-1] != pad[1:-1, 2:])
-    )
-    maps[2][outline] = 1.0
-    maps[3:6][:, rows, cols] = (surface / 100.0).T
-    return index, maps
 
 
 def _gaussian(heat: np.ndarray, cx: float, cy: float, sigma: float) -> None:
@@ -241,6 +160,7 @@ def make_sample(
             inst_valid[k_inst] = 1.0
             k_inst += 1
     state_index, state_maps = state_projection(base, cam, cfg.image_size, cfg.base_grid)
+    state_maps[9] = change_map(image[:3], state_maps[6:9])
     t = {
         "image": torch.from_numpy(image),
         "base_voxels": torch.from_numpy(base_voxels(base, cfg.base_grid))[None],

@@ -1,0 +1,152 @@
+"""Stage 2 by synthesis: lift a step's components to 3D by making the picture agree.
+
+For every component type the manual says the step adds, a mask of the pixels that may show it
+(the change map between the step's picture and the rendered base shape, optionally narrowed by
+the detector), and optionally the detector's per-pixel belief that a pixel shows that type.
+Then, until every instance is placed: for each type with instances left, brickgeom ranks every
+valid placement (collision-free, connected by studs or standing on the ground) by the IoU of
+its visible silhouette with the part of the type's mask not yet explained
+(:func:`mepnet._brickgeom.abys_ranked`); the best few are rendered over the current shape in the
+colour the manual's callout gives the type and scored
+
+    IoU + TYPE_WEIGHT * mean belief over the visible pixels
+        + KEYPOINT_WEIGHT * keypoint heatmap at the projected keypoint
+        - COLOUR_WEIGHT * colour residual
+
+(the colour residual: the mean over the candidate's visible pixels of the largest channel
+difference between the picture and the render). The best (type, placement) of all joins the
+shape and its visible pixels leave every mask, so the next instance fits the rest.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from mepnet import _brickgeom as _bg
+from mepnet.data import ComponentRef, step_colour
+from mepnet.predictors import Prediction, Predictor, StepContext
+from mepnet.state import change_map, state_projection
+
+#: Weight of the detector's type belief (mean over a candidate's visible pixels).
+TYPE_WEIGHT = 0.3
+#: Weight of the colour residual.
+COLOUR_WEIGHT = 1.0
+#: Weight of the detector's keypoint heatmap at the candidate's projected keypoint.
+KEYPOINT_WEIGHT = 0.3
+#: Placements per type (best mask IoU first) weighed by colour and type belief.
+RANKED = 6
+#: A pixel of the change map above this is part of something new.
+CHANGE_THRESHOLD = 0.15
+
+
+@dataclass
+class SynthesisType:
+    """What stage 2 knows about one component type of a step."""
+
+    ref: ComponentRef
+    component: _bg.Component
+    count: int
+    #: (H, W) bool: pixels that may show this type.
+    mask: np.ndarray
+    #: (H, W) float in [0, 1]: the detector's belief that a pixel shows this type (or None).
+    belief: np.ndarray | None = None
+    #: (H, W) float in [0, 1]: the detector's keypoint heatmap for this type (or None).
+    heat: np.ndarray | None = None
+
+
+def _keypoint_px(
+    comp: _bg.Component, yaw: int, t: tuple[int, int, int], cam: _bg.Camera, w: int, h: int
+) -> tuple[float, float]:
+    """Pixel of a placed component's keypoint (its first: the anchor stage 2 uses)."""
+    x, y, z = (float(v) for v in comp.keypoints[0])
+    rx, ry, rz = [(x, y, z), (z, y, -x), (-x, y, -z), (-z, y, x)][yaw % 4]
+    world = np.array([[rx + 10.0 * t[0], ry + 8.0 * t[1], rz + 10.0 * t[2]]])
+    px, _ = cam.project(world, w, h)
+    return float(px[0, 0]), float(px[0, 1])
+
+
+def step_change(ctx: StepContext) -> np.ndarray:
+    """The change map of a step at the manual's image size: where its picture differs from the
+    base shape rendered with the step's camera (:func:`mepnet.state.change_map`)."""
+    w, h = ctx.image_size
+    picture = ctx.step.image().astype(np.float32).transpose(2, 0, 1) / 255.0
+    if w != h:
+        raise ValueError(f"{ctx.step.image_path}: synthesis needs square images, got {w}x{h}")
+    _, maps = state_projection(ctx.base, ctx.step.camera, w, (2, 2, 2))
+    return change_map(picture, maps[6:9])
+
+
+def synthesize(
+    ctx: StepContext,
+    types: list[SynthesisType],
+    time_limit_s: float = 10.0,
+) -> list[Prediction]:
+    """Poses for every instance of ``types`` on ``ctx.base`` (see the module docstring)."""
+    w, h = ctx.image_size
+    asm = ctx.base.copy()
+    cam = ctx.camera
+    left = [t.count for t in types]
+    unexplained = np.ones((h, w), dtype=bool)
+    colours = [step_colour(ctx.truth, ctx.step, t.ref) for t in types]
+    picture = ctx.step.image().astype(np.float32) / 255.0 if COLOUR_WEIGHT else None
+    preds: list[Prediction] = []
+    while any(left):
+        best: tuple[float, int, tuple[int, tuple[int, int, int]], dict[str, Any]] | None = None
+        for i, t in enumerate(types):
+            m = t.mask & unexplained
+            if not left[i] or not m.any():
+                continue
+            ranked, timed_out = _bg.abys_ranked(
+                asm, cam, w, h, t.component, m, RANKED, time_limit_s
+            )
+            for yaw, tr, iou in ranked:
+                score = iou
+                trial = asm.copy()
+                tid = trial.add(t.component, yaw, tr, colours[i])
+                r = _bg.render(trial, cam, w, h)
+                vis = r["ids"] == tid
+                if vis.any() and TYPE_WEIGHT and t.belief is not None:
+                    score += TYPE_WEIGHT * float(t.belief[vis].mean())
+                if KEYPOINT_WEIGHT and t.heat is not None:
+                    x, y = _keypoint_px(t.component, yaw, tr, cam, w, h)
+                    if 0 <= x < w and 0 <= y < h:
+                        score += KEYPOINT_WEIGHT * float(t.heat[int(y), int(x)])
+                if vis.any() and picture is not None:
+                    diff = np.abs(picture[vis] - r["rgb"][vis] / 255.0).max(axis=1)
+                    score -= COLOUR_WEIGHT * float(diff.mean())
+                if best is None or score > best[0]:
+                    best = (score, i, (yaw, tr), {"iou": iou, "timed_out": timed_out})
+        if best is None:
+            for i, t in enumerate(types):
+                preds += [
+                    Prediction(t.ref, None, None, failure="no placement fits its mask")
+                ] * left[i]
+                left[i] = 0
+            break
+        _, i, (yaw, tr), extra = best
+        new_id, attach = asm.add_checked(types[i].component, yaw, tr)
+        unexplained &= _bg.render(asm, cam, w, h, line_px=0.0)["ids"] != new_id
+        left[i] -= 1
+        preds.append(Prediction(types[i].ref, yaw, tr, attach=attach, extra=extra))
+    return preds
+
+
+class SynthesisPredictor(Predictor):
+    """Stage 2 by synthesis alone, no detector: every type may be anywhere the picture changed
+    (the ablation that shows what the detector's beliefs add)."""
+
+    name = "synthesis"
+
+    def __init__(self, time_limit_s: float = 10.0):
+        self.time_limit_s = time_limit_s
+
+    def predict(self, ctx: StepContext) -> list[Prediction]:
+        support = step_change(ctx) > CHANGE_THRESHOLD
+        types = [
+            SynthesisType(sc.component, ctx.components[sc.component], sc.count, support)
+            for sc in ctx.step.components
+        ]
+        return synthesize(ctx, types, self.time_limit_s)
