@@ -343,33 +343,14 @@ fn best_placement(
         return Ok(best.map(|(iou, _, c)| (c, target.map(|_| iou))));
     }
     let anchor = comp.keypoints()[0];
-    if let (true, Some(_), Some(probs)) = (opts.rotation_by_mask, target, det.rotation.as_ref()) {
-        // Every distinct yaw's best placement, scored by mask IoU + class probability (both in
-        // [0, 1], so a confident class decides unless the silhouettes clearly disagree).
-        let mut best: Option<(f64, f64, Candidate, Option<f64>)> = None;
-        for yaw in yaws_from_classes(comp.symmetry, Some(probs)) {
-            let cands = ray_candidates(
-                asm,
-                comp,
-                yaw,
-                anchor,
-                det.keypoint,
-                proj,
-                opts.max_error_px,
-            );
-            if let Some((cand, iou)) = resolve_ties(comp, cands, camera, target, opts)?
-                .into_iter()
-                .next()
-            {
-                let prob = probs[rotation_class(comp.symmetry, yaw) as usize] as f64;
-                let key = (iou.unwrap_or(0.0) + prob, -cand.error_px);
-                if best.is_none_or(|(bk, be, _, _)| key > (bk, be)) {
-                    best = Some((key.0, key.1, cand, iou));
-                }
-            }
-        }
-        return Ok(best.map(|(_, _, c, iou)| (c, iou)));
-    }
+    // With a mask, every distinct yaw's best placement is scored by mask IoU + class probability
+    // (both in [0, 1], so a confident class decides unless the silhouettes clearly disagree);
+    // without one, the most probable yaw that has a valid placement wins.
+    let by_mask = match (opts.rotation_by_mask, target, det.rotation.as_ref()) {
+        (true, Some(_), Some(p)) => Some(p),
+        _ => None,
+    };
+    let mut best: Option<(f64, f64, Candidate, Option<f64>)> = None;
     for yaw in yaws_from_classes(comp.symmetry, det.rotation.as_ref()) {
         let cands = ray_candidates(
             asm,
@@ -380,14 +361,22 @@ fn best_placement(
             proj,
             opts.max_error_px,
         );
-        if let Some(best) = resolve_ties(comp, cands, camera, target, opts)?
+        let Some((cand, iou)) = resolve_ties(comp, cands, camera, target, opts)?
             .into_iter()
             .next()
-        {
-            return Ok(Some(best));
+        else {
+            continue;
+        };
+        let Some(probs) = by_mask else {
+            return Ok(Some((cand, iou)));
+        };
+        let prob = probs[rotation_class(comp.symmetry, yaw) as usize] as f64;
+        let key = (iou.unwrap_or(0.0) + prob, -cand.error_px);
+        if best.is_none_or(|(bk, be, _, _)| key > (bk, be)) {
+            best = Some((key.0, key.1, cand, iou));
         }
     }
-    Ok(None)
+    Ok(best.map(|(_, _, c, iou)| (c, iou)))
 }
 
 /// Order candidates: smallest reprojection error; among those within `tie_px` of it, the best
