@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from mepnet import _brickgeom as _bg
+from mepnet.state import make_camera
 
 SCHEMA = "mepnet.manual"
 VERSION = 1
@@ -131,10 +132,7 @@ class Step:
 
     def camera_object(self) -> _bg.Camera:
         """The step camera as a :class:`mepnet.Camera`."""
-        c = self.camera
-        return _bg.Camera(
-            c["elevation"], c["azimuth"], c["roll"], c["scale"], tuple(c["translation"])
-        )
+        return make_camera(self.camera)
 
     @property
     def instance_ids(self) -> list[int]:

@@ -37,11 +37,6 @@ def bundled_manual() -> Path:
     return Path(str(resources.files("mepnet") / "data" / "example_manual"))
 
 
-def bundled_weights() -> Path:
-    """Path of the shipped slim detector weights."""
-    return Path(str(resources.files("mepnet") / "data" / "weights" / "slim.safetensors"))
-
-
 def build_order(checks: list[dict[str, Any]], root: int = 0) -> list[int]:
     """Model indices with every submodel before the models that use it (``root`` last)."""
     order: list[int] = []
@@ -173,15 +168,7 @@ def run_manual(path: Path, args: argparse.Namespace) -> int:
     from mepnet.predictors import make_predictor
 
     manual = load_manual(path)
-    if args.predictor == "mepnet":
-        weights = args.weights or bundled_weights()
-        if not weights.is_file():
-            raise BrickGeomError(f"{weights}: detector weights not found")
-        from mepnet.checkpoint import load_predictor
-
-        predictor = load_predictor(weights)
-    else:
-        predictor = make_predictor(args.predictor, sigma=args.sigma)
+    predictor = make_predictor(args.predictor, sigma=args.sigma, weights=args.weights)
     out = args.out or Path(f"{path.name}-plan")
     plan = write_plan(manual, predictor, out)
     print(f"mepnet: manual {path}: predictor {plan['predictor']}")

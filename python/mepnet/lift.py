@@ -28,7 +28,7 @@ import numpy as np
 from mepnet import _brickgeom as _bg
 from mepnet.data import ComponentRef, step_colour
 from mepnet.predictors import Prediction, Predictor, StepContext
-from mepnet.state import change_map, state_projection
+from mepnet.state import change_map, state_picture
 
 #: Weight of the detector's type belief (mean over a candidate's visible pixels).
 TYPE_WEIGHT = 0.3
@@ -68,30 +68,39 @@ def _keypoint_px(
     return float(px[0, 0]), float(px[0, 1])
 
 
-def step_change(ctx: StepContext) -> np.ndarray:
-    """The change map of a step at the manual's image size: where its picture differs from the
-    base shape rendered with the step's camera (:func:`mepnet.state.change_map`)."""
+def step_picture(ctx: StepContext) -> np.ndarray:
+    """The step image, (H, W, 3) floats in [0, 1]."""
+    return ctx.step.image().astype(np.float32) / 255.0
+
+
+def step_change(ctx: StepContext, picture: np.ndarray) -> np.ndarray:
+    """The change map of a step (:func:`mepnet.state.change_map`): where its ``picture`` (H, W,
+    3 floats in [0, 1], the manual's image size) differs from the base shape rendered with the
+    step's camera."""
     w, h = ctx.image_size
-    picture = ctx.step.image().astype(np.float32).transpose(2, 0, 1) / 255.0
     if w != h:
         raise ValueError(f"{ctx.step.image_path}: synthesis needs square images, got {w}x{h}")
-    _, maps = state_projection(ctx.base, ctx.step.camera, w, (2, 2, 2))
-    return change_map(picture, maps[6:9])
+    return change_map(picture.transpose(2, 0, 1), state_picture(ctx.base, ctx.step.camera, w))
 
 
 def synthesize(
     ctx: StepContext,
     types: list[SynthesisType],
     time_limit_s: float = 10.0,
+    picture: np.ndarray | None = None,
 ) -> list[Prediction]:
-    """Poses for every instance of ``types`` on ``ctx.base`` (see the module docstring)."""
+    """Poses for every instance of ``types`` on ``ctx.base`` (see the module docstring);
+    ``picture``: the step image as floats in [0, 1] when the caller has read it already."""
     w, h = ctx.image_size
     asm = ctx.base.copy()
     cam = ctx.camera
     left = [t.count for t in types]
     unexplained = np.ones((h, w), dtype=bool)
     colours = [step_colour(ctx.truth, ctx.step, t.ref) for t in types]
-    picture = ctx.step.image().astype(np.float32) / 255.0 if COLOUR_WEIGHT else None
+    if not COLOUR_WEIGHT:
+        picture = None
+    elif picture is None:
+        picture = step_picture(ctx)
     preds: list[Prediction] = []
     while any(left):
         best: tuple[float, int, tuple[int, tuple[int, int, int]], dict[str, Any]] | None = None
@@ -144,9 +153,10 @@ class SynthesisPredictor(Predictor):
         self.time_limit_s = time_limit_s
 
     def predict(self, ctx: StepContext) -> list[Prediction]:
-        support = step_change(ctx) > CHANGE_THRESHOLD
+        picture = step_picture(ctx)
+        support = step_change(ctx, picture) > CHANGE_THRESHOLD
         types = [
             SynthesisType(sc.component, ctx.components[sc.component], sc.count, support)
             for sc in ctx.step.components
         ]
-        return synthesize(ctx, types, self.time_limit_s)
+        return synthesize(ctx, types, self.time_limit_s, picture)

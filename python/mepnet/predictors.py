@@ -18,6 +18,8 @@ from __future__ import annotations
 import time
 import zlib
 from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -181,6 +183,11 @@ class AbysPredictor(Predictor):
         return preds
 
 
+def bundled_weights() -> Path:
+    """Path of the shipped slim detector weights."""
+    return Path(str(resources.files("mepnet") / "data" / "weights" / "slim.safetensors"))
+
+
 PREDICTORS = ("oracle", "oracle-noisy", "abys", "synthesis", "mepnet", "direct3d")
 
 
@@ -189,7 +196,7 @@ def make_predictor(
     sigma: float = 1.0,
     seed: int = 0,
     time_limit_s: float = 60.0,
-    weights: str | None = None,
+    weights: str | Path | None = None,
     lift: str = "synthesis",
 ) -> Predictor:
     """A predictor by name (``mepnet`` takes ``weights``, a ``model.safetensors``; default: the
@@ -205,13 +212,9 @@ def make_predictor(
 
         return SynthesisPredictor(min(time_limit_s, 10.0))
     if name == "mepnet":
-        from importlib import resources
-        from pathlib import Path
-
         from mepnet.checkpoint import load_predictor
 
-        if weights is None:
-            weights = str(resources.files("mepnet") / "data" / "weights" / "slim.safetensors")
+        weights = str(weights or bundled_weights())
         if not Path(weights).is_file():
             raise ValueError(f"{weights}: detector weights not found")
 

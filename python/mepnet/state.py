@@ -10,7 +10,7 @@ import numpy as np
 
 from mepnet import _brickgeom as _bg
 
-__all__ = ["STATE_MAPS", "change_map", "make_camera", "state_projection"]
+__all__ = ["STATE_MAPS", "change_map", "make_camera", "state_picture", "state_projection"]
 
 #: Channels of the rendered state maps (see :func:`state_projection` and :func:`change_map`).
 STATE_MAPS = 10
@@ -28,6 +28,15 @@ def make_camera(camera: dict[str, Any]) -> _bg.Camera:
         camera["scale"],
         tuple(camera["translation"]),
     )
+
+
+def state_picture(asm: _bg.Assembly, camera: dict[str, Any], size: int) -> np.ndarray:
+    """The base shape rendered in the manual's style, (3, size, size) RGB in [0, 1] on white
+    paper: what the step's picture would look like without the step."""
+    if len(asm) == 0:
+        return np.ones((3, size, size), np.float32)
+    rgb = _bg.render(asm, make_camera(camera), size, size)["rgb"]
+    return rgb.transpose(2, 0, 1).astype(np.float32) / 255.0
 
 
 def state_projection(
@@ -52,7 +61,7 @@ def state_projection(
         return index, maps
     cam = make_camera(camera)
     r = _bg.render(asm, cam, size, size)
-    maps[6:9] = r["rgb"].transpose(2, 0, 1) / 255.0
+    maps[6:9] = r["rgb"].transpose(2, 0, 1) / 255.0  # as state_picture, from the same render
     depth, ids = r["depth"], r["ids"]
     hit = np.isfinite(depth)
     if not hit.any():

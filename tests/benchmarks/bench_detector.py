@@ -18,20 +18,21 @@ from __future__ import annotations
 import argparse
 import os
 import platform
-import subprocess
 import sys
 import tempfile
 import time
+from pathlib import Path
 
 import numpy as np
 import torch
 import torch.nn.functional as F
 
 sys.path.insert(0, os.path.dirname(__file__))
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 from bench_geom import replace_section  # noqa: E402
+from conftest import generate_manuals  # noqa: E402
 from mepnet.data import iter_manual_dirs, load_manual  # noqa: E402
 from mepnet.eval import _gt_components  # noqa: E402
-from mepnet.infer import bundled_weights  # noqa: E402
 from mepnet.model.config import ModelConfig  # noqa: E402
 from mepnet.model.losses import total_loss  # noqa: E402
 from mepnet.model.net import build_model  # noqa: E402
@@ -94,12 +95,7 @@ def main(argv: list[str] | None = None) -> int:
     torch.set_num_threads(os.cpu_count() or 1)
     cfg = ModelConfig.slim()
     with tempfile.TemporaryDirectory() as d:
-        subprocess.run(
-            [sys.executable, "-m", "mepnet.synth", "--no-progress", "--out", d]
-            + ["--manuals", str(args.manuals), "--seed", "900000", "--workers", "2"],
-            check=True,
-            capture_output=True,
-        )
+        generate_manuals(Path(d), args.manuals, 900000)
         manuals = [load_manual(m) for m in iter_manual_dirs(d)]
         steps = [(m, k) for m in manuals for k in range(len(m.main.steps))]
 
@@ -141,8 +137,7 @@ def main(argv: list[str] | None = None) -> int:
         ref_state_s = timed(ref_state, args.repeat)
 
         # --- inference ------------------------------------------------------------------
-        weights = bundled_weights()
-        mepnet = make_predictor("mepnet", weights=str(weights))
+        mepnet = make_predictor("mepnet")  # the shipped weights
         abys = make_predictor("abys")
         ours_t, abys_t = [], []
         for m in manuals:

@@ -13,15 +13,17 @@ from __future__ import annotations
 
 import argparse
 import os
-import subprocess
 import sys
 import tempfile
 import time
+from pathlib import Path
 
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(__file__))
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 from bench_geom import NumpyAssembly, replace_section, rot_cells  # noqa: E402
+from conftest import generate_manuals  # noqa: E402
 from mepnet import _brickgeom as _bg  # noqa: E402
 from mepnet.data import iter_manual_dirs, load_manual  # noqa: E402
 from mepnet.eval import _gt_components, _gt_step  # noqa: E402
@@ -124,24 +126,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--manuals", type=int, default=20)
     args = ap.parse_args(argv)
     with tempfile.TemporaryDirectory() as d:
-        subprocess.run(
-            [
-                sys.executable,
-                "-m",
-                "mepnet.synth",
-                "--no-progress",
-                "--out",
-                d,
-                "--manuals",
-                str(args.manuals),
-                "--seed",
-                "900000",
-                "--workers",
-                "2",
-            ],
-            check=True,
-            capture_output=True,
-        )
+        generate_manuals(Path(d), args.manuals, 900000)
         prim, subm, ours_match, ref_match = [], [], [], []
         agree = compared = 0
         for md in iter_manual_dirs(d):
