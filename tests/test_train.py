@@ -345,3 +345,39 @@ def test_settings_file_and_flags(tmp_path: Path, capsys: pytest.CaptureFixture[s
     settings.write_text(json.dumps({"batch_sise": 7}))
     assert main(["--config", str(settings)]) == 2
     one_error_line(capsys, str(settings), "batch_sise")
+
+
+def test_init_fine_tunes_from_given_weights(finished: Path, tmp_path: Path, manuals: Path):
+    """--init loads the weights (a fresh optimizer; at lr 0 the parameters stay exactly those
+    weights); without it the same seed gives other weights."""
+    init = finished / "model.safetensors"
+    runs = {}
+    for name, extra in (("init", ["--init", str(init)]), ("fresh", [])):
+        out = tmp_path / name
+        r = train("--data", str(manuals / "train"), "--steps", "1", "--lr", "0", "--seed", "5",
+                  "--out", str(out), *extra)  # fmt: skip
+        assert r.returncode == 0, r.stderr
+        runs[name] = load_model(out / "model.safetensors")[0]
+    want = load_model(init)[0]
+    got = dict(runs["init"].named_parameters())
+    for k, v in want.named_parameters():
+        assert torch.equal(v, got[k]), k
+    fresh = dict(runs["fresh"].named_parameters())
+    assert any(not torch.equal(v, fresh[k]) for k, v in want.named_parameters())
+    saved = json.loads((tmp_path / "init" / "config.json").read_text())["train"]
+    assert saved["init"] == str(init)
+
+
+def test_init_weights_must_exist_and_fit(
+    finished: Path, tmp_path: Path, manuals: Path, capsys: pytest.CaptureFixture[str]
+):
+    data = ["--data", str(manuals / "train"), "--steps", "1"]
+    assert main([*data, "--out", str(tmp_path / "a"), "--init", str(tmp_path / "nope")]) == 2
+    one_error_line(capsys, "nope", "no such weights file")
+    init = str(finished / "model.safetensors")
+    assert main([*data, "--out", str(tmp_path / "b"), "--init", init, "--model", "slim"]) == 2
+    one_error_line(capsys, init, "do not fit", "image_size")
+    (tmp_path / "junk.safetensors").write_bytes(b"\x10\x00" + b"x" * 40)
+    junk = str(tmp_path / "junk.safetensors")
+    assert main([*data, "--out", str(tmp_path / "c"), "--init", junk]) == 2
+    one_error_line(capsys, junk)

@@ -59,6 +59,11 @@ class TrainConfig:
     augment: bool = _f(True, "colour / blur / zoom augmentation")
     model: str = _f("slim", "model config: slim, paper, tiny or a JSON file")
     model_set: tuple[str, ...] = _f((), "model config overrides KEY=VALUE (VALUE as JSON)")
+    init: str | None = _f(
+        None,
+        "start from these weights (a model.safetensors, e.g. the shipped ones) with a fresh "
+        "optimizer and schedule: fine-tuning; their model config must match --model",
+    )
     batch_size: int = _f(16, "samples per step and process")
     lr: float = _f(2.5e-4, "peak learning rate (AdamW)")
     weight_decay: float = _f(0.01, "AdamW weight decay")
@@ -72,6 +77,12 @@ class TrainConfig:
     workers: int = _f(2, "DataLoader worker processes (spawned) per process", resumable=True)
     val_dir: str | None = _f(None, "manual folders to validate on (pose accuracy)", True)
     val_every: int = _f(1000, "validate every N steps (and at the end)", resumable=True)
+    val_lift: str = _f(
+        "keypoint",
+        "stage 2 in validation: keypoint (from the detector's keypoints and rotations, the "
+        "paper's; measures the detector) or synthesis (mepnet.infer's default)",
+        resumable=True,
+    )
     val_cd_points: int = _f(500, "points per Chamfer distance in validation", resumable=True)
     checkpoint_every: int = _f(1000, "checkpoint every N steps (and at the end)", True)
     log_every: int = _f(50, "log training losses every N steps", resumable=True)
@@ -128,6 +139,18 @@ def model_config_of(cfg: TrainConfig) -> ModelConfig:
         raise SetupError(f"--model-set: {e}") from None
 
 
+def load_init(path: str, model_cfg: ModelConfig) -> dict[str, torch.Tensor]:
+    """The weights of ``--init``, checked against the run's model config."""
+    from mepnet.checkpoint import load_model_weights
+
+    tensors, saved = load_model_weights(path)
+    now = json.loads(json.dumps(model_cfg.to_dict()))  # tuples as lists, as in the header
+    diff = [f"{k}: weights {v!r}, now {now.get(k)!r}" for k, v in saved.items() if now.get(k) != v]
+    if diff:
+        raise SetupError(f"{path}: --init weights do not fit the model config ({'; '.join(diff)})")
+    return tensors
+
+
 def check_resumable(saved: TrainConfig, now: TrainConfig, path: Path) -> None:
     """A resumed run may change only the fields marked resumable (output, logging, length...)."""
     for f in fields(TrainConfig):
@@ -149,6 +172,10 @@ def _validate(cfg: TrainConfig) -> None:
         raise SetupError("--steps, --epochs, --workers and --threads must not be negative")
     if not cfg.data and cfg.steps < 1:
         raise SetupError("on-the-fly generation (no --data) needs --steps")
+    if cfg.val_lift not in ("keypoint", "synthesis"):
+        raise SetupError(f"--val-lift must be keypoint or synthesis, got {cfg.val_lift!r}")
+    if cfg.init is not None and not Path(cfg.init).is_file():
+        raise SetupError(f"{cfg.init}: no such weights file (--init)")
     if cfg.device not in ("auto", "cpu", "cuda"):
         raise SetupError(f"--device must be auto, cpu or cuda, got {cfg.device!r}")
     if cfg.device == "cuda" and not torch.cuda.is_available():
@@ -359,6 +386,8 @@ def _train(
     # --- model, optimizer, schedule --------------------------------------------------------
     torch.manual_seed(cfg.seed)  # the same initial weights on every rank
     model = build_model(model_cfg).to(d.device)
+    if cfg.init is not None and ckpt is None:
+        load_state_strict(model, load_init(cfg.init, model_cfg), Path(cfg.init))
     params = list(model.parameters())
     opt = torch.optim.AdamW(params, lr=cfg.lr, weight_decay=cfg.weight_decay)
 
@@ -504,7 +533,7 @@ def _train(
             runner = model if not cuda else _OnDevice(model, d.device)
             r = evaluate(
                 cfg.val_dir,
-                MEPNetPredictor(runner, model_cfg),
+                MEPNetPredictor(runner, model_cfg, lift=cfg.val_lift),
                 cd_points=cfg.val_cd_points,
                 progress=False,
             )
@@ -647,7 +676,11 @@ def _train(
 # Command line
 
 
-CHOICES = {"schedule": ("cosine", "plateau"), "device": ("auto", "cpu", "cuda")}
+CHOICES = {
+    "schedule": ("cosine", "plateau"),
+    "device": ("auto", "cpu", "cuda"),
+    "val_lift": ("keypoint", "synthesis"),
+}
 
 
 def _field_flag(f: Any) -> tuple[str, dict[str, Any]]:
@@ -751,6 +784,8 @@ def main(argv: list[str] | None = None) -> int:
             print(json.dumps(resolve(args, validate=False)[0].to_dict(), indent=1))
             return 0
         cfg, model_cfg, ckpt = resolve(args)
+        if cfg.init is not None and ckpt is None:
+            load_init(cfg.init, model_cfg)  # fail now, not after the data is set up
         generator = generator_settings(cfg, model_cfg) if not cfg.data else None
         out = Path(cfg.out)
         out.mkdir(parents=True, exist_ok=True)
