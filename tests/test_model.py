@@ -15,7 +15,7 @@ from mepnet.model.config import ModelConfig
 from mepnet.model.decode import decode
 from mepnet.model.losses import total_loss
 from mepnet.model.net import StateEncoder, build_model
-from mepnet.model.targets import base_voxels, collate, make_sample
+from mepnet.model.targets import base_voxels, collate, make_sample, restyle_lines
 from mepnet.state import state_projection
 
 
@@ -157,3 +157,31 @@ def test_change_map_marks_what_the_step_adds(manual):
     # (64 px images: small parts are a few pixels, their outlines a good share of them)
     assert np.median(ious) > 0.85, ious
     assert np.mean(np.array(ious) > 0.5) > 0.85, ious
+
+
+def test_line_restyling_changes_only_edges():
+    """Thick lines darken the pixels where the instance map changes (and up to 2 px beside
+    them), faint lines blend them toward their neighbourhood; pixels away from edges keep their
+    colour."""
+    ids = np.full((32, 32), -1, dtype=np.int64)
+    ids[8:24, 8:24] = 0
+    ids[8:24, 16:24] = 1
+    img = np.full((32, 32, 3), 200.0, dtype=np.float32)
+    img[ids >= 0] = 120.0
+    far = np.ones((32, 32), dtype=bool)
+    for r, c in ((8, None), (24, None), (None, 8), (None, 16), (None, 24)):
+        if r is not None:
+            far[r - 4 : r + 4] = False
+        else:
+            far[:, c - 4 : c + 4] = False
+    rng = np.random.default_rng(3)
+    thick = restyle_lines(img, ids, rng, "thick")
+    assert np.array_equal(thick[far], img[far])
+    assert thick[12, 16].max() < 100 and thick[12, 15].max() <= 120  # the part edge is inked
+    assert thick[4, 4].tolist() == [200.0] * 3
+    faint = restyle_lines(img, ids, rng, "faint")
+    assert np.array_equal(faint[far], img[far])
+    assert 120 < faint[8, 12].mean() < 200  # silhouette edge pulled toward the background
+    assert np.array_equal(restyle_lines(img, ids, rng, ""), img)
+    with pytest.raises(ValueError, match="line mode"):
+        restyle_lines(img, ids, rng, "dotted")

@@ -4,8 +4,8 @@ instance map.
 A sample holds the network inputs (image + edge channel, base-shape voxels, camera, component
 voxels per slot) and the targets at the head stride: Gaussian centre heatmaps per slot, the
 keypoint offsets, semantic masks per slot, an instance map for the associative-embedding loss,
-and per instance its slot, keypoint cell and rotation class. Augmentation (colour, blur, scale)
-keeps image, camera and keypoints consistent.
+and per instance its slot, keypoint cell and rotation class. Augmentation (colour, outlines,
+blur, scale) keeps image, camera and keypoints consistent.
 """
 
 from __future__ import annotations
@@ -181,6 +181,47 @@ def make_sample(
     return StepSample(tensors=t)
 
 
+#: Line restyling: probability of heavier outlines, and of fainter ones.
+THICK_LINES, FAINT_LINES = 0.2, 0.15
+
+
+def restyle_lines(
+    img: np.ndarray, ids: np.ndarray, rng: np.random.Generator, mode: str | None = None
+) -> np.ndarray:
+    """Outlines as another renderer might draw them: where the instance map changes (part and
+    silhouette edges), ``thick`` paints 1-3 px lines in a random dark grey, ``faint`` blends the
+    edge pixels toward their 3x3 neighbourhood mean (thin or missing lines); ``mode`` None draws
+    one of them or nothing (:data:`THICK_LINES`, :data:`FAINT_LINES`). ``img`` (H, W, 3) float."""
+    if mode is None:
+        u = rng.random()
+        mode = "thick" if u < THICK_LINES else "faint" if u < THICK_LINES + FAINT_LINES else ""
+    if not mode:
+        return img
+    edge = np.zeros(ids.shape, dtype=bool)
+    edge[:, 1:] |= ids[:, 1:] != ids[:, :-1]
+    edge[1:, :] |= ids[1:, :] != ids[:-1, :]
+    if mode == "thick":
+        for _ in range(int(rng.integers(0, 2))):  # widen to 2-3 px
+            grown = edge.copy()
+            grown[:, 1:] |= edge[:, :-1]
+            grown[1:, :] |= edge[:-1, :]
+            edge = grown
+        alpha = float(rng.uniform(0.6, 1.0))
+        ink = float(rng.uniform(0.0, 70.0))
+        out = img.copy()
+        out[edge] = (1 - alpha) * img[edge] + alpha * ink
+        return out
+    if mode == "faint":
+        p = np.pad(img, ((1, 1), (1, 1), (0, 0)), mode="edge")
+        h, w = ids.shape
+        mean = sum(p[dy : dy + h, dx : dx + w] for dy in range(3) for dx in range(3)) / 9
+        alpha = float(rng.uniform(0.4, 0.9))
+        out = img.copy()
+        out[edge] = (1 - alpha) * img[edge] + alpha * mean[edge]
+        return out
+    raise ValueError(f"unknown line mode {mode!r}")
+
+
 def _augment(
     rgb: np.ndarray,
     ids: np.ndarray,
@@ -188,11 +229,13 @@ def _augment(
     kps: dict[int, np.ndarray],
     rng: np.random.Generator,
 ) -> tuple[np.ndarray, np.ndarray, dict[str, Any], dict[int, np.ndarray]]:
-    """Colour gain/bias, optional blur, and a zoom about the image centre (camera and keypoints
-    follow), so the detector does not depend on our renderer's exact look."""
+    """Colour gain/bias, restyled outlines, optional blur, and a zoom about the image centre
+    (camera and keypoints follow), so the detector does not depend on our renderer's exact
+    look."""
     h, w = ids.shape
     img = rgb.astype(np.float32)
     img = img * rng.uniform(0.8, 1.2, size=3) + rng.uniform(-20, 20, size=3)
+    img = restyle_lines(img, ids, rng)
     if rng.random() < 0.3:
         p = np.pad(img, ((1, 1), (1, 1), (0, 0)), mode="edge")
         img = (p[:-2, 1:-1] + p[2:, 1:-1] + p[1:-1, :-2] + p[1:-1, 2:] + 4 * img) / 8
