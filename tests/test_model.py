@@ -185,3 +185,20 @@ def test_line_restyling_changes_only_edges():
     assert np.array_equal(restyle_lines(img, ids, rng, ""), img)
     with pytest.raises(ValueError, match="line mode"):
         restyle_lines(img, ids, rng, "dotted")
+
+
+def test_change_map_survives_large_dark_new_parts():
+    """New parts covering much of a white page (dark plates over a small brick) must not pull
+    the gain/bias fit so far that the unchanged background reads as changed."""
+    from mepnet.state import change_map
+
+    state = np.ones((3, 64, 64), np.float32)
+    state[:, 40:56, 24:40] = np.array([0.9, 0.7, 0.1])[:, None, None]  # the base: a yellow brick
+    image = state.copy()
+    image[:, 20:44, 12:52] = 0.3  # the new parts: dark grey, over background and brick
+    # as rendered, printed a little paler, printed darker
+    for picture in (image, image * 0.9, np.clip(image - 0.1, 0, 1)):
+        changed = change_map(picture, state) > 0.15
+        new = np.zeros((64, 64), bool)
+        new[20:44, 12:52] = True
+        assert (changed == new).mean() > 0.99, (changed & ~new).sum()

@@ -107,23 +107,37 @@ def state_projection(
     return index, maps
 
 
+def _fit_gain_bias(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
+    """The gain and bias mapping most of ``x`` (the state render) onto ``y`` (the picture):
+    two starts, the least-squares line over all pixels and the identity shifted by the median
+    difference; the one more pixels follow within 0.1 is refitted on those pixels, twice. (The
+    least-squares start alone fails when large new parts cover a light background: pulled by
+    them, it leaves even the background unexplained.)"""
+    starts = [(1.0, float(np.median(y - x)))]
+    if x.size >= 16 and x.var() >= 1e-4:
+        g = float(((x - x.mean()) * (y - y.mean())).mean() / x.var())
+        starts.append((g, float(y.mean() - g * x.mean())))
+    gain, bias = max(starts, key=lambda s: int((np.abs(y - (s[0] * x + s[1])) < 0.1).sum()))
+    for _ in range(2):  # refit on the pixels the fit explains (not the new parts)
+        keep = np.abs(y - (gain * x + bias)) < 0.1
+        xk, yk = x[keep], y[keep]
+        if xk.size < 16 or xk.var() < 1e-4:
+            break  # (nearly) blank paper: only a brightness shift to find
+        gain = float(((xk - xk.mean()) * (yk - yk.mean())).mean() / xk.var())
+        bias = float(yk.mean() - gain * xk.mean())
+    return gain, bias
+
+
 def change_map(image: np.ndarray, state: np.ndarray) -> np.ndarray:
     """Where the manual image differs from the rendered base shape, (H, W) in [0, 1]: per
-    channel, the state render is first mapped onto the image by the least-squares gain and bias
-    over all pixels (most of the picture is unchanged), so a manual printed in other colours or
-    brightness still compares; then the largest absolute residual over the channels."""
+    channel, the state render is first mapped onto the image by a gain and bias fitted to the
+    pixels that did not change (:func:`_fit_gain_bias`), so a manual printed in other
+    colours or brightness still compares; then the largest absolute residual over the
+    channels."""
     out = np.zeros(image.shape[1:], np.float32)
     for c in range(3):
         x = state[c].ravel().astype(np.float64)
         y = image[c].ravel().astype(np.float64)
-        keep = np.ones(x.shape, bool)
-        gain, bias = 1.0, float(np.median(y - x))
-        for _ in range(2):  # fit, then refit on the pixels the fit explains (not the new parts)
-            xs, ys = x[keep], y[keep]
-            if xs.size < 16 or xs.var() < 1e-4:
-                break  # (nearly) blank paper: only a brightness shift to find
-            gain = float(((xs - xs.mean()) * (ys - ys.mean())).mean() / xs.var())
-            bias = float(ys.mean() - gain * xs.mean())
-            keep = np.abs(y - (gain * x + bias)) < 0.1
+        gain, bias = _fit_gain_bias(x, y)
         np.maximum(out, np.abs(image[c] - (gain * state[c] + bias)), out=out)
     return np.clip(out, 0.0, 1.0)
