@@ -18,7 +18,7 @@ import numpy as np
 
 from mepnet import _brickgeom as _bg
 from mepnet.data import write_manual
-from mepnet.geom import BrickGeomError, manual_camera, rotate_lattice
+from mepnet.geom import LDU_PER_CELL, BrickGeomError, manual_camera, rotate_lattice, rotate_ldu
 from mepnet.ldraw import LDrawFile
 
 #: Library parts eligible as substitutes: rectangular bricks, plates and tiles.
@@ -48,13 +48,9 @@ def library_box(part: str) -> Box:
     """Body bounds of a library part from its voxels."""
     v = _bg.part_info(part)["voxels"]
     lo, hi = v.min(axis=0), v.max(axis=0) + 1
-    unit = np.array([10.0, 8.0, 10.0])
-    return Box(tuple(lo * unit), tuple(hi * unit), len(_bg.part_info(part)["studs"]) > 0)  # type: ignore[arg-type]
-
-
-def _rotate(p: np.ndarray, yaw: int) -> np.ndarray:
-    x, y, z = p
-    return np.array([(x, y, z), (z, y, -x), (-x, y, -z), (-z, y, x)][yaw % 4], dtype=float)
+    return Box(
+        tuple(lo * LDU_PER_CELL), tuple(hi * LDU_PER_CELL), len(_bg.part_info(part)["studs"]) > 0
+    )  # type: ignore[arg-type]
 
 
 class Substitutes:
@@ -99,7 +95,7 @@ class Substitutes:
         sx, sy, sz = box.size
         if min(sx, sz) < 5 or sy < 4:
             return None, f"too thin to stand in for ({sx:.0f}x{sy:.0f}x{sz:.0f} LDU)"
-        world = _rotate(box.anchor, yaw) + np.array(t) * [10.0, 8.0, 10.0]
+        world = rotate_ldu(box.anchor, yaw) + np.array(t) * LDU_PER_CELL
         for part, lb in self.library:
             if lb.studs != box.studs:
                 continue
@@ -108,7 +104,7 @@ class Substitutes:
                 if abs(lx - sx) > 2.0 or abs(lz - sz) > 2.0 or abs(ly - sy) > 2.0:
                     continue
                 new_yaw = (yaw + turn) % 4
-                origin = (world - _rotate(lb.anchor, new_yaw)) / [10.0, 8.0, 10.0]
+                origin = (world - rotate_ldu(lb.anchor, new_yaw)) / LDU_PER_CELL
                 if np.all(np.abs(origin - np.round(origin)) < 0.05):
                     return (part, new_yaw, tuple(int(v) for v in np.round(origin))), ""  # type: ignore[return-value]
         return (

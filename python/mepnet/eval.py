@@ -49,6 +49,7 @@ from mepnet.data import (
     step_colour,
 )
 from mepnet.geom import BrickGeomError, rotate_lattice
+from mepnet.lift import LIFTS
 from mepnet.predictors import (
     PREDICTORS,
     Prediction,
@@ -385,7 +386,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     ap.add_argument(
         "--lift",
-        choices=("synthesis", "keypoint"),
+        choices=LIFTS,
         default="synthesis",
         help="mepnet: lift detections to 3D by synthesis from the masks (default) or by the "
         "paper's keypoint ray search",

@@ -5,6 +5,8 @@ Units (DESIGN §2): lattice x and z in half-studs (10 LDU), y in plates (8 LDU),
 Meshes are in LDU, y up.
 """
 
+import numpy as np
+
 from mepnet._brickgeom import (
     Assembly,
     BelowGroundError,
@@ -38,6 +40,16 @@ def rotate_lattice(
     return (int(r[0] + t[0]), int(r[1] + t[1]), int(r[2] + t[2]))
 
 
+#: LDU per lattice cell along x, y and z.
+LDU_PER_CELL = np.array([10.0, 8.0, 10.0])
+
+
+def rotate_ldu(p: tuple[float, float, float] | np.ndarray, yaw: int) -> np.ndarray:
+    """A point in LDU turned by ``yaw`` quarter turns about +y (as :func:`rotate_lattice`)."""
+    x, y, z = p
+    return np.array([(x, y, z), (z, y, -x), (-x, y, -z), (-z, y, x)][yaw % 4], dtype=float)
+
+
 def bounds_corners(assembly: Assembly, drop: int = 0) -> list[list[float]]:
     """The 8 corners (LDU, y up) of an assembly's occupied voxel bounds, lowered by ``drop``
     plates."""
@@ -58,8 +70,6 @@ def manual_camera(
     drop: int = 0,
 ) -> Camera:
     """A manual-style camera framing an assembly (the shape fills ``fill`` of the frame)."""
-    import numpy as np
-
     corners = np.array(bounds_corners(assembly, drop), dtype=np.float64)
     return Camera(elevation, azimuth).fitted(corners, fill)
 
@@ -69,6 +79,7 @@ ATTACH_KINDS = ("on_studs", "from_below", "ground")
 
 __all__ = [
     "ATTACH_KINDS",
+    "LDU_PER_CELL",
     "Assembly",
     "BelowGroundError",
     "Camera",
@@ -90,5 +101,6 @@ __all__ = [
     "bounds_corners",
     "manual_camera",
     "resolve_part",
+    "rotate_ldu",
     "rotate_lattice",
 ]

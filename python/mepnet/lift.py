@@ -27,8 +27,13 @@ import numpy as np
 
 from mepnet import _brickgeom as _bg
 from mepnet.data import ComponentRef, step_colour
+from mepnet.geom import LDU_PER_CELL, rotate_ldu
 from mepnet.predictors import Prediction, Predictor, StepContext
 from mepnet.state import change_map, state_picture
+
+#: How the detector's detections are lifted to 3D: ``synthesis`` (this module, from the
+#: component masks) or ``keypoint`` (the paper's keypoint ray search, masks breaking ties).
+LIFTS = ("synthesis", "keypoint")
 
 #: Weight of the detector's type belief (mean over a candidate's visible pixels).
 TYPE_WEIGHT = 0.3
@@ -61,10 +66,8 @@ def _keypoint_px(
     comp: _bg.Component, yaw: int, t: tuple[int, int, int], cam: _bg.Camera, w: int, h: int
 ) -> tuple[float, float]:
     """Pixel of a placed component's keypoint (its first: the anchor stage 2 uses)."""
-    x, y, z = (float(v) for v in comp.keypoints[0])
-    rx, ry, rz = [(x, y, z), (z, y, -x), (-x, y, -z), (-z, y, x)][yaw % 4]
-    world = np.array([[rx + 10.0 * t[0], ry + 8.0 * t[1], rz + 10.0 * t[2]]])
-    px, _ = cam.project(world, w, h)
+    world = rotate_ldu(comp.keypoints[0], yaw) + np.array(t) * LDU_PER_CELL
+    px, _ = cam.project(world[None], w, h)
     return float(px[0, 0]), float(px[0, 1])
 
 

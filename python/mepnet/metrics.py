@@ -23,6 +23,7 @@ import numpy.typing as npt
 import trimesh
 
 from mepnet import _brickgeom
+from mepnet.geom import LDU_PER_CELL
 
 __all__ = [
     "CD_REPORT_SCALE",
@@ -41,8 +42,6 @@ Mesh = tuple[npt.NDArray[np.float32], npt.NDArray[np.uint32]]
 #: Factor applied to :func:`chamfer` values in reported tables (the paper's x1e5).
 CD_REPORT_SCALE = 1e5
 
-#: LDU per lattice unit along x, y, z (half-stud, plate, half-stud).
-_LDU_PER_LATTICE = np.array([10.0, 8.0, 10.0], dtype=np.float64)
 
 P = TypeVar("P")
 G = TypeVar("G")
@@ -119,7 +118,7 @@ def component_mesh(component: _brickgeom.Component, yaw: int, t: Sequence[int]) 
         p = np.stack([-x, y, -z], axis=1)
     elif yaw == 3:
         p = np.stack([-z, y, x], axis=1)
-    p = p + tt * _LDU_PER_LATTICE
+    p = p + tt * LDU_PER_CELL
     return p.astype(np.float32), np.asarray(tri, dtype=np.uint32)
 
 

@@ -9,14 +9,12 @@ from typing import Any
 import numpy as np
 
 from mepnet import _brickgeom as _bg
+from mepnet.geom import LDU_PER_CELL
 
 __all__ = ["STATE_MAPS", "change_map", "make_camera", "state_picture", "state_projection"]
 
 #: Channels of the rendered state maps (see :func:`state_projection` and :func:`change_map`).
 STATE_MAPS = 10
-
-#: LDU per lattice cell (x, y, z).
-_UNIT = np.array([10.0, 8.0, 10.0])
 
 
 def make_camera(camera: dict[str, Any]) -> _bg.Camera:
@@ -84,7 +82,7 @@ def state_projection(
         todo = found < 0
         if not todo.any():
             break
-        cell = np.floor((surface[todo] + step * rot[2]) / _UNIT).astype(np.int64) - lo
+        cell = np.floor((surface[todo] + step * rot[2]) / LDU_PER_CELL).astype(np.int64) - lo
         inside = np.all((cell >= 0) & (cell < np.array(grid)), axis=1)
         ok = np.zeros(len(cell), bool)
         c = cell[inside]

@@ -34,6 +34,7 @@ from torch import nn
 
 from mepnet.checkpoint import CheckpointError, atomic_write_json, load_checkpoint
 from mepnet.data import ManualFormatError, iter_manual_dirs, load_manual
+from mepnet.lift import LIFTS
 from mepnet.model.config import ModelConfig
 
 
@@ -139,15 +140,23 @@ def model_config_of(cfg: TrainConfig) -> ModelConfig:
         raise SetupError(f"--model-set: {e}") from None
 
 
+def config_diff(saved: dict[str, Any], now: ModelConfig, what: str) -> str:
+    """The model-config fields where ``saved`` (a stored config, as JSON) differs from ``now``,
+    as ``field: WHAT saved, now value; ...`` ('' when they agree)."""
+    cur = json.loads(json.dumps(now.to_dict()))  # tuples as lists, as stored
+    return "; ".join(
+        f"{k}: {what} {v!r}, now {cur.get(k)!r}" for k, v in saved.items() if cur.get(k) != v
+    )
+
+
 def load_init(path: str, model_cfg: ModelConfig) -> dict[str, torch.Tensor]:
     """The weights of ``--init``, checked against the run's model config."""
     from mepnet.checkpoint import load_model_weights
 
     tensors, saved = load_model_weights(path)
-    now = json.loads(json.dumps(model_cfg.to_dict()))  # tuples as lists, as in the header
-    diff = [f"{k}: weights {v!r}, now {now.get(k)!r}" for k, v in saved.items() if now.get(k) != v]
+    diff = config_diff(saved, model_cfg, "weights")
     if diff:
-        raise SetupError(f"{path}: --init weights do not fit the model config ({'; '.join(diff)})")
+        raise SetupError(f"{path}: --init weights do not fit the model config ({diff})")
     return tensors
 
 
@@ -172,8 +181,8 @@ def _validate(cfg: TrainConfig) -> None:
         raise SetupError("--steps, --epochs, --workers and --threads must not be negative")
     if not cfg.data and cfg.steps < 1:
         raise SetupError("on-the-fly generation (no --data) needs --steps")
-    if cfg.val_lift not in ("keypoint", "synthesis"):
-        raise SetupError(f"--val-lift must be keypoint or synthesis, got {cfg.val_lift!r}")
+    if cfg.val_lift not in LIFTS:
+        raise SetupError(f"--val-lift must be {' or '.join(LIFTS)}, got {cfg.val_lift!r}")
     if cfg.init is not None and not Path(cfg.init).is_file():
         raise SetupError(f"{cfg.init}: no such weights file (--init)")
     if cfg.device not in ("auto", "cpu", "cuda"):
@@ -342,13 +351,15 @@ def run(
     ckpt: tuple[dict[str, torch.Tensor], dict[str, Any], dict[str, Any]] | None,
     *,
     generator: dict[str, Any] | None,
+    init: dict[str, torch.Tensor] | None = None,
     debug_checksums: bool = False,
     kill_at_step: int | None = None,
 ) -> int:
-    """Train (in this process, or as one rank of a torchrun job); returns the exit status."""
+    """Train (in this process, or as one rank of a torchrun job) from the ``--init`` weights
+    ``init`` (when given and not resuming); returns the exit status."""
     d = setup_distributed(cfg)
     try:
-        return _train(cfg, model_cfg, ckpt, d, generator, debug_checksums, kill_at_step)
+        return _train(cfg, model_cfg, ckpt, d, generator, init, debug_checksums, kill_at_step)
     finally:
         if d.world_size > 1:
             import torch.distributed as td
@@ -362,6 +373,7 @@ def _train(
     ckpt: tuple[dict[str, torch.Tensor], dict[str, Any], dict[str, Any]] | None,
     d: Dist,
     generator: dict[str, Any] | None,
+    init: dict[str, torch.Tensor] | None,
     debug_checksums: bool,
     kill_at_step: int | None,
 ) -> int:
@@ -386,8 +398,8 @@ def _train(
     # --- model, optimizer, schedule --------------------------------------------------------
     torch.manual_seed(cfg.seed)  # the same initial weights on every rank
     model = build_model(model_cfg).to(d.device)
-    if cfg.init is not None and ckpt is None:
-        load_state_strict(model, load_init(cfg.init, model_cfg), Path(cfg.init))
+    if init is not None and ckpt is None:
+        load_state_strict(model, init, Path(str(cfg.init)))
     params = list(model.parameters())
     opt = torch.optim.AdamW(params, lr=cfg.lr, weight_decay=cfg.weight_decay)
 
@@ -679,7 +691,7 @@ def _train(
 CHOICES = {
     "schedule": ("cosine", "plateau"),
     "device": ("auto", "cpu", "cuda"),
-    "val_lift": ("keypoint", "synthesis"),
+    "val_lift": LIFTS,
 }
 
 
@@ -764,12 +776,8 @@ def resolve(
         check_resumable(saved, cfg, path)
         model_cfg = model_config_of(cfg)
         if model_cfg != saved_model:
-            diff = [
-                f"{k}: checkpoint {v!r}, now {model_cfg.to_dict()[k]!r}"
-                for k, v in saved_model.to_dict().items()
-                if model_cfg.to_dict()[k] != v
-            ]
-            raise SetupError(f"{path}: model config mismatch ({'; '.join(diff)})")
+            diff = config_diff(doc["model_config"], model_cfg, "checkpoint")
+            raise SetupError(f"{path}: model config mismatch ({diff})")
     if validate:
         _validate(cfg)
     model_cfg = model_config_of(cfg)
@@ -784,8 +792,7 @@ def main(argv: list[str] | None = None) -> int:
             print(json.dumps(resolve(args, validate=False)[0].to_dict(), indent=1))
             return 0
         cfg, model_cfg, ckpt = resolve(args)
-        if cfg.init is not None and ckpt is None:
-            load_init(cfg.init, model_cfg)  # fail now, not after the data is set up
+        init = load_init(cfg.init, model_cfg) if cfg.init is not None and ckpt is None else None
         generator = generator_settings(cfg, model_cfg) if not cfg.data else None
         out = Path(cfg.out)
         out.mkdir(parents=True, exist_ok=True)
@@ -801,6 +808,7 @@ def main(argv: list[str] | None = None) -> int:
             model_cfg,
             ckpt,
             generator=generator,
+            init=init,
             debug_checksums=args.debug_checksums,
             kill_at_step=args.debug_kill_at_step,
         )

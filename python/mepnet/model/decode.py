@@ -12,15 +12,11 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from mepnet.lift import CHANGE_THRESHOLD, SynthesisType, synthesize
+from mepnet.lift import CHANGE_THRESHOLD, LIFTS, SynthesisType, synthesize
 from mepnet.model.config import ModelConfig
 from mepnet.model.net import MEPNet
 from mepnet.model.targets import collate, make_sample
 from mepnet.predictors import Prediction, Predictor, StepContext, run_stage2
-
-#: How the detections are lifted to 3D: ``synthesis`` (from the component masks) or
-#: ``keypoint`` (the paper's keypoint ray search, masks breaking ties).
-LIFTS = ("synthesis", "keypoint")
 
 #: A pixel is a plausible part of a component type when the network's mask probability for
 #: that type is at least this fraction of the most probable type's there (0: every changed
@@ -105,11 +101,15 @@ def decode(
             emb = emb_all[s][:, rows[:, None], cols[None, :]]  # (d, H, W)
             dist = np.stack([((emb - c[:, None, None]) ** 2).sum(0) for c in centres])
             owner = dist.argmin(0)
+            # what the slot's type as a whole looks like: the same arrays on each detection
+            per_type = {
+                "type_mask": support & plausible[s],
+                "type_prob": type_prob[s],
+                "type_heat": _resize_nearest(heat[s].numpy(), size),
+            }
             for j, d in enumerate(dets):
                 d["mask"] = mine & (owner == j)
-                d["type_mask"] = support & plausible[s]
-                d["type_prob"] = type_prob[s]
-                d["type_heat"] = _resize_nearest(heat[s].numpy(), size)
+                d.update(per_type)
         result.append(dets)
     return result
 
