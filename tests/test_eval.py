@@ -220,3 +220,59 @@ def test_mepnet_predictor_from_trained_weights(manuals: Path, tmp_path: Path):
     bad.write_bytes(b"\x80\x04not a safetensors file")
     r = run_eval("--data", str(one), "--predictor", "mepnet", "--weights", str(bad))
     assert r.returncode == 2 and "bad.safetensors" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_change_map_tolerates_lines_drawn_unlike_ours(manuals: Path):
+    """A manual whose renderer draws thick outlines: without line tolerance every part edge of
+    the base reads as changed; with it those false changes mostly go while the new parts stay.
+    A picture drawn as we draw keeps its change map."""
+    from mepnet.data import load_manual
+    from mepnet.eval import _gt_components
+    from mepnet.lift import CHANGE_THRESHOLD, step_change, step_picture, tolerate_lines
+    from mepnet.model.targets import restyle_lines
+    from mepnet.predictors import StepContext
+    from mepnet.state import change_map, state_render
+
+    m = load_manual(sorted(manuals.iterdir())[0])
+    comps = _gt_components(m)
+    build = m.main
+    base = _bg.Assembly()
+    rng = np.random.default_rng(5)
+    kept = 0
+    false_raw = false_tol = hit_raw = hit_tol = 0
+    for step in build.steps:
+        if len(base):
+            ctx = StepContext(step, base.copy(), comps, m.image_size, build)
+            picture = step_picture(ctx)
+            ids = step.ids()
+            state, outline = state_render(ctx.base, step.camera, m.image_size[0])
+            raw = change_map(picture.transpose(2, 0, 1), state)
+            kept += int(np.array_equal(step_change(ctx, picture), raw))
+            inked = restyle_lines(picture * 255, ids, rng, "thick") / 255
+            raw = change_map(inked.transpose(2, 0, 1), state) > CHANGE_THRESHOLD
+            tol = tolerate_lines(raw * 1.0, outline) > CHANGE_THRESHOLD
+            new = np.isin(ids, step.instance_ids)
+            false_raw += int((raw & ~new).sum())
+            false_tol += int((tol & ~new).sum())
+            hit_raw += int((raw & new).sum())
+            hit_tol += int((tol & new).sum())
+        for v in step.views:
+            i = build.instances[v.id]
+            base.add(comps[i.component], i.yaw, i.t, i.colour)
+    n = len(build.steps) - 1
+    assert kept >= 0.9 * n, (kept, n)
+    assert false_tol < 0.5 * false_raw, (false_tol, false_raw)
+    assert hit_tol > 0.9 * hit_raw, (hit_tol, hit_raw)
+
+
+def test_synthesis_holds_up_on_a_manual_drawn_in_another_style(manuals: Path, tmp_path: Path):
+    """Another renderer's look (tone curve, saturation, tinted page, other lines, blur:
+    `mepnet.restyle`) costs stage 2 by synthesis only a little (line tolerance, colours compared
+    after the tone fit)."""
+    from mepnet.restyle import main as restyle
+
+    one = sorted(manuals.iterdir())[0]
+    assert restyle(["--data", str(one), "--out", str(tmp_path), "--seed", "1"]) == 0
+    m = evaluate(tmp_path / one.name, make_predictor("synthesis"), cd_points=2000, progress=False)
+    assert m["n_steps"] > 5
+    assert m["component_acc"] > 0.8, m

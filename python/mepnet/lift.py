@@ -14,7 +14,8 @@ colour the manual's callout gives the type and scored
         - COLOUR_WEIGHT * colour residual
 
 (the colour residual: the mean over the candidate's visible pixels of the largest channel
-difference between the picture and the render). The best (type, placement) of all joins the
+difference between the picture and the render, the render first mapped onto the picture's tones
+by the per-channel gain and bias that map the rendered base shape onto the picture). The best (type, placement) of all joins the
 shape and its visible pixels leave every mask, so the next instance fits the rest.
 """
 
@@ -29,7 +30,7 @@ from mepnet import _brickgeom as _bg
 from mepnet.data import ComponentRef, step_colour
 from mepnet.geom import LDU_PER_CELL, rotate_ldu
 from mepnet.predictors import Prediction, Predictor, StepContext
-from mepnet.state import change_map, state_picture
+from mepnet.state import change_map, fit_gain_bias, state_render
 
 #: How the detector's detections are lifted to 3D: ``synthesis`` (this module, from the
 #: component masks) or ``keypoint`` (the paper's keypoint ray search, masks breaking ties).
@@ -39,12 +40,19 @@ LIFTS = ("synthesis", "keypoint")
 TYPE_WEIGHT = 0.3
 #: Weight of the colour residual.
 COLOUR_WEIGHT = 1.0
+#: Compare colours after mapping the render onto the picture's tones (per channel, the gain
+#: and bias fitted between the rendered base shape and the picture, as the change map does).
+COLOUR_FIT = True
 #: Weight of the detector's keypoint heatmap at the candidate's projected keypoint.
 KEYPOINT_WEIGHT = 0.3
 #: Placements per type (best mask IoU first) weighed by colour and type belief.
 RANKED = 6
 #: A pixel of the change map above this is part of something new.
 CHANGE_THRESHOLD = 0.15
+#: Line tolerance (:func:`tolerate_lines`): the band either side of the base's part edges, in
+#: pixels; how far a change outside the band reaches into it; and the share of the band that
+#: must show isolated changes (lines drawn unlike ours) before the band is discounted.
+LINE_BAND, LINE_REACH, LINE_MISMATCH = 1, 2, 0.05
 
 
 @dataclass
@@ -76,14 +84,44 @@ def step_picture(ctx: StepContext) -> np.ndarray:
     return ctx.step.image().astype(np.float32) / 255.0
 
 
+def _max_filter(a: np.ndarray, r: int) -> np.ndarray:
+    """The maximum over each pixel's (2r+1)^2 neighbourhood (edges padded)."""
+    h, w = a.shape
+    p = np.pad(a, r, mode="edge")
+    out = a.copy()
+    for dy in range(2 * r + 1):
+        for dx in range(2 * r + 1):
+            np.maximum(out, p[dy : dy + h, dx : dx + w], out=out)
+    return out
+
+
+def tolerate_lines(change: np.ndarray, outline: np.ndarray) -> np.ndarray:
+    """The change map with the base's outlines discounted when the picture draws its lines
+    unlike our renderer (thicker, fainter, blurred): then every part edge of the base reads as
+    changed. Within :data:`LINE_BAND` px of the base's outlines a pixel keeps its change only
+    as far as a change outside the band reaches it (:data:`LINE_REACH` px: the new part it
+    borders). Applied only when more than :data:`LINE_MISMATCH` of the band shows changes no
+    such part explains, so a picture drawn as we draw keeps its map (thin new slivers along old
+    edges included)."""
+    band = _max_filter(outline.astype(np.uint8), LINE_BAND).astype(bool)
+    if not band.any():
+        return change
+    reach = _max_filter(np.where(band, 0.0, change).astype(change.dtype), LINE_REACH)
+    isolated = band & (change > CHANGE_THRESHOLD) & (reach <= CHANGE_THRESHOLD)
+    if isolated.sum() <= LINE_MISMATCH * band.sum():
+        return change
+    return np.where(band, np.minimum(change, reach), change)
+
+
 def step_change(ctx: StepContext, picture: np.ndarray) -> np.ndarray:
-    """The change map of a step (:func:`mepnet.state.change_map`): where its ``picture`` (H, W,
-    3 floats in [0, 1], the manual's image size) differs from the base shape rendered with the
-    step's camera."""
+    """The change map of a step (:func:`mepnet.state.change_map`, lines tolerated by
+    :func:`tolerate_lines`): where its ``picture`` (H, W, 3 floats in [0, 1], the manual's
+    image size) differs from the base shape rendered with the step's camera."""
     w, h = ctx.image_size
     if w != h:
         raise ValueError(f"{ctx.step.image_path}: synthesis needs square images, got {w}x{h}")
-    return change_map(picture.transpose(2, 0, 1), state_picture(ctx.base, ctx.step.camera, w))
+    state, outline = state_render(ctx.base, ctx.step.camera, w)
+    return tolerate_lines(change_map(picture.transpose(2, 0, 1), state), outline)
 
 
 def synthesize(
@@ -104,6 +142,13 @@ def synthesize(
         picture = None
     elif picture is None:
         picture = step_picture(ctx)
+    tone = np.array([[1.0, 1.0, 1.0], [0.0, 0.0, 0.0]], np.float32)  # gain, bias per channel
+    if picture is not None and COLOUR_FIT:
+        state, _ = state_render(ctx.base, ctx.step.camera, w)
+        for c in range(3):
+            tone[:, c] = fit_gain_bias(
+                state[c].ravel().astype(np.float64), picture[..., c].ravel().astype(np.float64)
+            )
     preds: list[Prediction] = []
     while any(left):
         best: tuple[float, int, tuple[int, tuple[int, int, int]], dict[str, Any]] | None = None
@@ -127,7 +172,8 @@ def synthesize(
                     if 0 <= x < w and 0 <= y < h:
                         score += KEYPOINT_WEIGHT * float(t.heat[int(y), int(x)])
                 if vis.any() and picture is not None:
-                    diff = np.abs(picture[vis] - r["rgb"][vis] / 255.0).max(axis=1)
+                    rendered = r["rgb"][vis] / 255.0 * tone[0] + tone[1]
+                    diff = np.abs(picture[vis] - rendered).max(axis=1)
                     score -= COLOUR_WEIGHT * float(diff.mean())
                 if best is None or score > best[0]:
                     best = (score, i, (yaw, tr), {"iou": iou, "timed_out": timed_out})

@@ -11,7 +11,15 @@ import numpy as np
 from mepnet import _brickgeom as _bg
 from mepnet.geom import LDU_PER_CELL
 
-__all__ = ["STATE_MAPS", "change_map", "make_camera", "state_picture", "state_projection"]
+__all__ = [
+    "STATE_MAPS",
+    "change_map",
+    "fit_gain_bias",
+    "make_camera",
+    "outline_of",
+    "state_projection",
+    "state_render",
+]
 
 #: Channels of the rendered state maps (see :func:`state_projection` and :func:`change_map`).
 STATE_MAPS = 10
@@ -28,13 +36,28 @@ def make_camera(camera: dict[str, Any]) -> _bg.Camera:
     )
 
 
-def state_picture(asm: _bg.Assembly, camera: dict[str, Any], size: int) -> np.ndarray:
+def outline_of(ids: np.ndarray) -> np.ndarray:
+    """(H, W) bool: the pixels of an instance map (background -1) with a 4-neighbour of another
+    instance or of the background -- both sides of every part and silhouette edge."""
+    pad = np.pad(ids, 1, mode="edge")
+    return (
+        (pad[1:-1, 1:-1] != pad[:-2, 1:-1])
+        | (pad[1:-1, 1:-1] != pad[2:, 1:-1])
+        | (pad[1:-1, 1:-1] != pad[1:-1, :-2])
+        | (pad[1:-1, 1:-1] != pad[1:-1, 2:])
+    )
+
+
+def state_render(
+    asm: _bg.Assembly, camera: dict[str, Any], size: int
+) -> tuple[np.ndarray, np.ndarray]:
     """The base shape rendered in the manual's style, (3, size, size) RGB in [0, 1] on white
-    paper: what the step's picture would look like without the step."""
+    paper (what the step's picture would look like without the step), and the outlines of its
+    parts, (size, size) bool (:func:`outline_of`)."""
     if len(asm) == 0:
-        return np.ones((3, size, size), np.float32)
-    rgb = _bg.render(asm, make_camera(camera), size, size)["rgb"]
-    return rgb.transpose(2, 0, 1).astype(np.float32) / 255.0
+        return np.ones((3, size, size), np.float32), np.zeros((size, size), bool)
+    r = _bg.render(asm, make_camera(camera), size, size)
+    return r["rgb"].transpose(2, 0, 1).astype(np.float32) / 255.0, outline_of(r["ids"])
 
 
 def state_projection(
@@ -59,7 +82,7 @@ def state_projection(
         return index, maps
     cam = make_camera(camera)
     r = _bg.render(asm, cam, size, size)
-    maps[6:9] = r["rgb"].transpose(2, 0, 1) / 255.0  # as state_picture, from the same render
+    maps[6:9] = r["rgb"].transpose(2, 0, 1) / 255.0  # as state_render, from the same render
     depth, ids = r["depth"], r["ids"]
     hit = np.isfinite(depth)
     if not hit.any():
@@ -93,19 +116,12 @@ def state_projection(
     index[rows, cols] = found
     maps[0][hit] = 1.0
     maps[1][hit] = (d - d.min()) / 100.0
-    pad = np.pad(ids, 1, mode="edge")
-    outline = (
-        (pad[1:-1, 1:-1] != pad[:-2, 1:-1])
-        | (pad[1:-1, 1:-1] != pad[2:, 1:-1])
-        | (pad[1:-1, 1:-1] != pad[1:-1, :-2])
-        | (pad[1:-1, 1:-1] != pad[1:-1, 2:])
-    )
-    maps[2][outline] = 1.0
+    maps[2][outline_of(ids)] = 1.0
     maps[3:6][:, rows, cols] = (surface / 100.0).T
     return index, maps
 
 
-def _fit_gain_bias(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
+def fit_gain_bias(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
     """The gain and bias mapping most of ``x`` (the state render) onto ``y`` (the picture):
     two starts, the least-squares line over all pixels and the identity shifted by the median
     difference; the one more pixels follow within 0.1 is refitted on those pixels, twice. (The
@@ -129,13 +145,13 @@ def _fit_gain_bias(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
 def change_map(image: np.ndarray, state: np.ndarray) -> np.ndarray:
     """Where the manual image differs from the rendered base shape, (H, W) in [0, 1]: per
     channel, the state render is first mapped onto the image by a gain and bias fitted to the
-    pixels that did not change (:func:`_fit_gain_bias`), so a manual printed in other
+    pixels that did not change (:func:`fit_gain_bias`), so a manual printed in other
     colours or brightness still compares; then the largest absolute residual over the
     channels."""
     out = np.zeros(image.shape[1:], np.float32)
     for c in range(3):
         x = state[c].ravel().astype(np.float64)
         y = image[c].ravel().astype(np.float64)
-        gain, bias = _fit_gain_bias(x, y)
+        gain, bias = fit_gain_bias(x, y)
         np.maximum(out, np.abs(image[c] - (gain * state[c] + bias)), out=out)
     return np.clip(out, 0.0, 1.0)

@@ -12,7 +12,14 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from mepnet.lift import CHANGE_THRESHOLD, LIFTS, SynthesisType, synthesize
+from mepnet.lift import (
+    CHANGE_THRESHOLD,
+    LIFTS,
+    SynthesisType,
+    step_change,
+    step_picture,
+    synthesize,
+)
 from mepnet.model.config import ModelConfig
 from mepnet.model.net import MEPNet
 from mepnet.model.targets import collate, make_sample
@@ -47,10 +54,10 @@ def decode(
     ``image_size`` (W, H; an int for a square image).
 
     Masks: each pixel goes to the slot whose mask probability is highest there, then within the
-    slot to the peak with the nearest associative embedding. With ``change`` (the change map at
-    the network's input resolution, see :func:`mepnet.model.targets.change_map`), the pixels
-    are those that differ from the rendered base shape (the network's masks decide only which
-    component and instance a changed pixel belongs to); without it, those the network marks."""
+    slot to the peak with the nearest associative embedding. With ``change`` (a square change
+    map of the step, any resolution: :func:`mepnet.lift.step_change`), the pixels are those
+    that differ from the rendered base shape (the network's masks decide only which component
+    and instance a changed pixel belongs to); without it, those the network marks."""
     heat = torch.sigmoid(out["heatmap"][0])  # (K, h, w)
     peaks = heat * (F.max_pool2d(heat[None], 3, 1, 1)[0] == heat)
     n = heat.shape[-1]
@@ -157,6 +164,10 @@ class MEPNetPredictor(Predictor):
             self._note_size(ctx)
             w, h = ctx.image_size
             types = []
+            picture = step_picture(ctx)
+            # where the picture differs from the base shape (lines tolerated), at the image's
+            # size; a non-square image: the change map of the network's (resized) input
+            change = step_change(ctx, picture) if self.use_change and w == h else None
             # K_max component types per forward pass; a step with more takes several
             n_types = len(ctx.step.components)
             for first in range(0, n_types, self.cfg.k_max):
@@ -172,7 +183,8 @@ class MEPNetPredictor(Predictor):
                 )
                 out = self.model(collate([sample]))
                 slots = [ctx.step.components[i] for i in chunk]
-                change = sample.tensors["state_maps"][9].numpy() if self.use_change else None
+                if change is None and self.use_change:
+                    change = sample.tensors["state_maps"][9].numpy()
                 dets = decode(out, [c.count for c in slots], self.cfg, (w, h), change)
                 types += [
                     {
@@ -185,13 +197,15 @@ class MEPNetPredictor(Predictor):
                 ]
             if self.lift == "keypoint":
                 return run_stage2(ctx, types)
-            return self._synthesis(ctx, types)
+            return self._synthesis(ctx, types, picture)
         finally:
             self.model.train(was_training)
 
-    def _synthesis(self, ctx: StepContext, types: list[dict[str, Any]]) -> list[Prediction]:
+    def _synthesis(
+        self, ctx: StepContext, types: list[dict[str, Any]], picture: np.ndarray
+    ) -> list[Prediction]:
         """Lift by synthesis (:func:`mepnet.lift.synthesize`) from the detector's type masks
-        and beliefs."""
+        and beliefs (``picture``: the step image, floats in [0, 1])."""
         h, w = ctx.image_size[1], ctx.image_size[0]
         return synthesize(
             ctx,
@@ -209,6 +223,7 @@ class MEPNetPredictor(Predictor):
                 for t in types
             ],
             time_limit_s=self.time_limit_s,
+            picture=picture,
         )
 
 

@@ -222,6 +222,13 @@ def restyle_lines(
     raise ValueError(f"unknown line mode {mode!r}")
 
 
+def blur(img: np.ndarray) -> np.ndarray:
+    """A light blur of an (H, W, 3) float image: each pixel half itself, half its 4-neighbours'
+    mean (edges padded)."""
+    p = np.pad(img, ((1, 1), (1, 1), (0, 0)), mode="edge")
+    return (p[:-2, 1:-1] + p[2:, 1:-1] + p[1:-1, :-2] + p[1:-1, 2:] + 4 * img) / 8
+
+
 def _augment(
     rgb: np.ndarray,
     ids: np.ndarray,
@@ -237,8 +244,7 @@ def _augment(
     img = img * rng.uniform(0.8, 1.2, size=3) + rng.uniform(-20, 20, size=3)
     img = restyle_lines(img, ids, rng)
     if rng.random() < 0.3:
-        p = np.pad(img, ((1, 1), (1, 1), (0, 0)), mode="edge")
-        img = (p[:-2, 1:-1] + p[2:, 1:-1] + p[1:-1, :-2] + p[1:-1, 2:] + 4 * img) / 8
+        img = blur(img)
     zoom = float(rng.uniform(0.9, 1.1))
     if abs(zoom - 1) > 1e-3:
         ys = np.clip(((np.arange(h) + 0.5 - h / 2) / zoom + h / 2).astype(np.int64), 0, h - 1)
