@@ -190,6 +190,10 @@ class Manual:
     main: Build
     submodules: list[Submodule] = field(default_factory=list)
 
+    def all_steps(self) -> list[Step]:
+        """Every step: the main build's, then each submodule build's."""
+        return [st for b in [self.main, *(s.build for s in self.submodules)] for st in b.steps]
+
     def component(self, ref: ComponentRef) -> _bg.Component:
         """The component a reference points at."""
         if ref.part is not None:
@@ -314,8 +318,7 @@ def load_manual(folder: str | os.PathLike[str]) -> Manual:
         if isinstance(e, ManualFormatError):
             raise
         raise ManualFormatError(f"{path}: malformed ({type(e).__name__}: {e})") from None
-    steps = [st for b in [manual.main, *(s.build for s in manual.submodules)] for st in b.steps]
-    missing = [st.image_path.name for st in steps if not st.image_path.is_file()]
+    missing = [st.image_path.name for st in manual.all_steps() if not st.image_path.is_file()]
     if missing:
         more = f" (and {len(missing) - 1} more)" if len(missing) > 1 else ""
         raise ManualFormatError(f"{folder}: step image {missing[0]} is missing{more}")

@@ -15,8 +15,9 @@ colour the manual's callout gives the type and scored
 
 (the colour residual: the mean over the candidate's visible pixels of the largest channel
 difference between the picture and the render, the render first mapped onto the picture's tones
-by the per-channel gain and bias that map the rendered base shape onto the picture). The best (type, placement) of all joins the
-shape and its visible pixels leave every mask, so the next instance fits the rest.
+by the per-channel gain and bias that map the rendered base shape onto the picture: the tone fit
+of the change map). The best (type, placement) of all joins the shape and its visible pixels
+leave every mask, so the next instance fits the rest.
 """
 
 from __future__ import annotations
@@ -30,7 +31,7 @@ from mepnet import _brickgeom as _bg
 from mepnet.data import ComponentRef, step_colour
 from mepnet.geom import LDU_PER_CELL, rotate_ldu
 from mepnet.predictors import Prediction, Predictor, StepContext
-from mepnet.state import change_map, fit_gain_bias, state_render
+from mepnet.state import change_map, fit_tone, state_render
 
 #: How the detector's detections are lifted to 3D: ``synthesis`` (this module, from the
 #: component masks) or ``keypoint`` (the paper's keypoint ray search, masks breaking ties).
@@ -40,9 +41,6 @@ LIFTS = ("synthesis", "keypoint")
 TYPE_WEIGHT = 0.3
 #: Weight of the colour residual.
 COLOUR_WEIGHT = 1.0
-#: Compare colours after mapping the render onto the picture's tones (per channel, the gain
-#: and bias fitted between the rendered base shape and the picture, as the change map does).
-COLOUR_FIT = True
 #: Weight of the detector's keypoint heatmap at the candidate's projected keypoint.
 KEYPOINT_WEIGHT = 0.3
 #: Placements per type (best mask IoU first) weighed by colour and type belief.
@@ -113,15 +111,18 @@ def tolerate_lines(change: np.ndarray, outline: np.ndarray) -> np.ndarray:
     return np.where(band, np.minimum(change, reach), change)
 
 
-def step_change(ctx: StepContext, picture: np.ndarray) -> np.ndarray:
+def step_change(ctx: StepContext, picture: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The change map of a step (:func:`mepnet.state.change_map`, lines tolerated by
     :func:`tolerate_lines`): where its ``picture`` (H, W, 3 floats in [0, 1], the manual's
-    image size) differs from the base shape rendered with the step's camera."""
+    image size) differs from the base shape rendered with the step's camera; and the tone fit
+    it compared by (:func:`mepnet.state.fit_tone`, for :func:`synthesize`'s colours)."""
     w, h = ctx.image_size
     if w != h:
         raise ValueError(f"{ctx.step.image_path}: synthesis needs square images, got {w}x{h}")
     state, outline = state_render(ctx.base, ctx.step.camera, w)
-    return tolerate_lines(change_map(picture.transpose(2, 0, 1), state), outline)
+    image = picture.transpose(2, 0, 1)
+    tone = fit_tone(image, state)
+    return tolerate_lines(change_map(image, state, tone), outline), tone
 
 
 def synthesize(
@@ -129,9 +130,12 @@ def synthesize(
     types: list[SynthesisType],
     time_limit_s: float = 10.0,
     picture: np.ndarray | None = None,
+    tone: np.ndarray | None = None,
 ) -> list[Prediction]:
     """Poses for every instance of ``types`` on ``ctx.base`` (see the module docstring);
-    ``picture``: the step image as floats in [0, 1] when the caller has read it already."""
+    ``picture``: the step image as floats in [0, 1] when the caller has read it already;
+    ``tone``: its tone fit, (2, 3) gain and bias per channel, from :func:`step_change` (none:
+    colours compared as rendered)."""
     w, h = ctx.image_size
     asm = ctx.base.copy()
     cam = ctx.camera
@@ -142,13 +146,8 @@ def synthesize(
         picture = None
     elif picture is None:
         picture = step_picture(ctx)
-    tone = np.array([[1.0, 1.0, 1.0], [0.0, 0.0, 0.0]], np.float32)  # gain, bias per channel
-    if picture is not None and COLOUR_FIT:
-        state, _ = state_render(ctx.base, ctx.step.camera, w)
-        for c in range(3):
-            tone[:, c] = fit_gain_bias(
-                state[c].ravel().astype(np.float64), picture[..., c].ravel().astype(np.float64)
-            )
+    if tone is None:
+        tone = np.array([[1.0, 1.0, 1.0], [0.0, 0.0, 0.0]])  # gain, bias per channel
     preds: list[Prediction] = []
     while any(left):
         best: tuple[float, int, tuple[int, tuple[int, int, int]], dict[str, Any]] | None = None
@@ -203,9 +202,10 @@ class SynthesisPredictor(Predictor):
 
     def predict(self, ctx: StepContext) -> list[Prediction]:
         picture = step_picture(ctx)
-        support = step_change(ctx, picture) > CHANGE_THRESHOLD
+        change, tone = step_change(ctx, picture)
+        support = change > CHANGE_THRESHOLD
         types = [
             SynthesisType(sc.component, ctx.components[sc.component], sc.count, support)
             for sc in ctx.step.components
         ]
-        return synthesize(ctx, types, self.time_limit_s, picture)
+        return synthesize(ctx, types, self.time_limit_s, picture, tone)

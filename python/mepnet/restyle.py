@@ -74,7 +74,7 @@ def restyle_manual(src: Path, out: Path, only: tuple[str, ...], strength: float,
     tmp = out.with_name(f".tmp-{out.name}")
     shutil.rmtree(tmp, ignore_errors=True)
     shutil.copytree(src, tmp)
-    steps = [s for b in [manual.main, *(m.build for m in manual.submodules)] for s in b.steps]
+    steps = manual.all_steps()
     for step in steps:
         rel = step.image_path.relative_to(src)
         rgb = step.image()

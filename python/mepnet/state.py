@@ -15,6 +15,7 @@ __all__ = [
     "STATE_MAPS",
     "change_map",
     "fit_gain_bias",
+    "fit_tone",
     "make_camera",
     "outline_of",
     "state_projection",
@@ -142,16 +143,26 @@ def fit_gain_bias(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
     return gain, bias
 
 
-def change_map(image: np.ndarray, state: np.ndarray) -> np.ndarray:
+def fit_tone(image: np.ndarray, state: np.ndarray) -> np.ndarray:
+    """(2, 3): per channel, the gain (row 0) and bias (row 1) mapping the state render onto the
+    image (both (3, H, W)), fitted to the pixels that did not change (:func:`fit_gain_bias`)."""
+    return np.array(
+        [
+            fit_gain_bias(state[c].ravel().astype(np.float64), image[c].ravel().astype(np.float64))
+            for c in range(3)
+        ]
+    ).T
+
+
+def change_map(image: np.ndarray, state: np.ndarray, tone: np.ndarray | None = None) -> np.ndarray:
     """Where the manual image differs from the rendered base shape, (H, W) in [0, 1]: per
-    channel, the state render is first mapped onto the image by a gain and bias fitted to the
-    pixels that did not change (:func:`fit_gain_bias`), so a manual printed in other
-    colours or brightness still compares; then the largest absolute residual over the
-    channels."""
+    channel, the state render is first mapped onto the image by its tone fit (``tone``, else
+    :func:`fit_tone`), so a manual printed in other colours or brightness still compares; then
+    the largest absolute residual over the channels."""
+    if tone is None:
+        tone = fit_tone(image, state)
     out = np.zeros(image.shape[1:], np.float32)
     for c in range(3):
-        x = state[c].ravel().astype(np.float64)
-        y = image[c].ravel().astype(np.float64)
-        gain, bias = fit_gain_bias(x, y)
+        gain, bias = float(tone[0, c]), float(tone[1, c])
         np.maximum(out, np.abs(image[c] - (gain * state[c] + bias)), out=out)
     return np.clip(out, 0.0, 1.0)

@@ -167,7 +167,7 @@ class MEPNetPredictor(Predictor):
             picture = step_picture(ctx)
             # where the picture differs from the base shape (lines tolerated), at the image's
             # size; a non-square image: the change map of the network's (resized) input
-            change = step_change(ctx, picture) if self.use_change and w == h else None
+            change, tone = step_change(ctx, picture) if self.use_change and w == h else (None, None)
             # K_max component types per forward pass; a step with more takes several
             n_types = len(ctx.step.components)
             for first in range(0, n_types, self.cfg.k_max):
@@ -197,15 +197,20 @@ class MEPNetPredictor(Predictor):
                 ]
             if self.lift == "keypoint":
                 return run_stage2(ctx, types)
-            return self._synthesis(ctx, types, picture)
+            return self._synthesis(ctx, types, picture, tone)
         finally:
             self.model.train(was_training)
 
     def _synthesis(
-        self, ctx: StepContext, types: list[dict[str, Any]], picture: np.ndarray
+        self,
+        ctx: StepContext,
+        types: list[dict[str, Any]],
+        picture: np.ndarray,
+        tone: np.ndarray | None,
     ) -> list[Prediction]:
         """Lift by synthesis (:func:`mepnet.lift.synthesize`) from the detector's type masks
-        and beliefs (``picture``: the step image, floats in [0, 1])."""
+        and beliefs (``picture``: the step image, floats in [0, 1]; ``tone``: its tone fit to
+        the base shape, from :func:`mepnet.lift.step_change`)."""
         h, w = ctx.image_size[1], ctx.image_size[0]
         return synthesize(
             ctx,
@@ -224,6 +229,7 @@ class MEPNetPredictor(Predictor):
             ],
             time_limit_s=self.time_limit_s,
             picture=picture,
+            tone=tone,
         )
 
 
