@@ -1,4 +1,6 @@
-//! The part table: the 72 primitive types of DESIGN §3, built from a few procedural shapes.
+//! The part table: the 72 primitive types of DESIGN §3, built from a few procedural shapes, and
+//! the types that define a part ([`PartDef`], [`Category`]). `library` re-exports the types and
+//! serves the lookup API over the table; this module does not use `library`.
 //!
 //! Frame: the LDraw part origin converted to the y-up lattice (LDraw (x, y, z) LDU -> lattice
 //! (x/10, -y/8, z/10)). For every part here but two that is the centre of the body's top face;
@@ -17,9 +19,65 @@
 //! LDraw geometry shows them; exceptions are noted where a part is built.
 
 use crate::lattice::{lattice_to_ldu, Lattice};
-use crate::library::{Category, PartDef};
 use crate::mesh::Mesh;
 use crate::shapes::{cuboid, side_stud_mesh_neg_z, stud_mesh, voxelize, Axis, Solid};
+
+/// The reference code's part groups.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Category {
+    /// Simple bricks and plates (45 types).
+    Simple,
+    /// Tiles (9).
+    Tile,
+    /// Plates with one centre stud (2).
+    Jumper,
+    /// Corner bricks and plates (2).
+    Corner,
+    /// Slopes (11).
+    Slope,
+    /// Everything else (3).
+    Misc,
+}
+
+impl Category {
+    /// Lower-case name used in JSON and the Python API.
+    pub fn name(&self) -> &'static str {
+        match self {
+            Category::Simple => "simple",
+            Category::Tile => "tile",
+            Category::Jumper => "jumper",
+            Category::Corner => "corner",
+            Category::Slope => "slope",
+            Category::Misc => "misc",
+        }
+    }
+}
+
+/// One primitive part type.
+#[derive(Debug, Clone)]
+pub struct PartDef {
+    /// Canonical LDraw id without `.dat`, lower case (e.g. `"3001"`, `"3062b"`).
+    pub id: &'static str,
+    /// LDraw description (e.g. `"Brick  2 x  4"`).
+    pub name: &'static str,
+    pub category: Category,
+    /// Occupied voxels (cell min corners), part-local.
+    pub voxels: Vec<Lattice>,
+    /// Stud points (top connection points), part-local; a stud at p engages an anti-stud at p.
+    pub studs: Vec<Lattice>,
+    /// Anti-stud points (bottom connection points), part-local.
+    pub anti_studs: Vec<Lattice>,
+    /// Order of the yaw symmetry group about the origin: 1, 2 or 4.
+    pub symmetry: u8,
+    /// Keypoint (centre of the top face) in LDU, y up, part-local.
+    pub keypoint: [f32; 3],
+    /// Triangle mesh with studs in LDU, y up, part-local.
+    pub mesh: Mesh,
+    /// Studs that are not vertical lattice connections (e.g. the side stud of 87087): they are
+    /// part of `mesh` but not of `studs`, and take no part in lattice connections. 0 for most
+    /// parts.
+    pub side_studs: u8,
+}
 
 /// Part references used in real LDraw files that mean a library part: LDraw "~Moved to"
 /// targets, newer or older moulds of the same shape and connections, and printed variants.
