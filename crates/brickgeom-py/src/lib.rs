@@ -8,10 +8,10 @@
 
 mod errors;
 mod geom;
-mod infer;
 mod ldraw;
 mod metrics;
 mod render;
+mod stage2;
 mod synth;
 
 use pyo3::prelude::*;
@@ -20,10 +20,10 @@ use pyo3::prelude::*;
 fn _brickgeom(m: &Bound<'_, PyModule>) -> PyResult<()> {
     errors::register(m)?;
     geom::register(m)?;
-    infer::register(m)?;
     ldraw::register(m)?;
     metrics::register(m)?;
     render::register(m)?;
+    stage2::register(m)?;
     synth::register(m)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     Ok(())

@@ -9,7 +9,6 @@ pub mod camera;
 pub mod colours;
 pub mod component;
 pub mod error;
-pub mod infer;
 pub mod lattice;
 pub mod ldraw;
 pub mod library;
@@ -20,6 +19,7 @@ pub mod raster;
 pub mod realmodel;
 pub mod scene;
 mod shapes;
+pub mod stage2;
 pub mod synth;
 
 pub use assembly::{Assembly, AttachKind, GroundSearch, Instance, Placement, Snapshot};

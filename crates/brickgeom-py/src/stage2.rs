@@ -1,6 +1,6 @@
-//! Stage 2 (pose inference) and the analysis-by-synthesis baseline.
+//! Stage 2 (pose inference, `brickgeom::stage2`) and the analysis-by-synthesis baseline.
 
-use brickgeom::infer::{
+use brickgeom::stage2::{
     abys_ranked, abys_step, infer_step, rotation_class, Detection, InferOptions, TypeDetections,
 };
 use numpy::PyReadonlyArray2;

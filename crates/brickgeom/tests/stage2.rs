@@ -5,11 +5,11 @@ use std::sync::Arc;
 
 use brickgeom::camera::Camera;
 use brickgeom::colours::ColourTable;
-use brickgeom::infer::{
-    abys_step, infer_step, rotation_class, Detection, InferOptions, TypeDetections,
-};
 use brickgeom::raster::RenderOptions;
 use brickgeom::scene::{render_assembly, MeshSource};
+use brickgeom::stage2::{
+    abys_step, infer_step, rotation_class, Detection, InferOptions, TypeDetections,
+};
 use brickgeom::{Assembly, AttachKind, Component, GroundSearch, Pose};
 
 const W: u32 = 256;
