@@ -1,6 +1,6 @@
 """Evaluation of a predictor on manual folders (synthetic or converted from real models).
 
-    python -m mepnet.eval --data DIR --predictor {oracle,oracle-noisy,abys,mepnet,direct3d}
+    python -m mepnet.eval --data DIR --predictor {mepnet,synthesis,oracle,oracle-noisy,oracle-abys}
                           [--json FILE] [--autoregressive] [--sigma PX]
 
 Metrics (paper §5.1), written as JSON with the keys of DESIGN §8:
@@ -27,10 +27,9 @@ Metrics (paper §5.1), written as JSON with the keys of DESIGN §8:
 from __future__ import annotations
 
 import argparse
-import json
+import math
 import os
 import sys
-import tempfile
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -39,25 +38,12 @@ import numpy as np
 
 from mepnet import _brickgeom as _bg
 from mepnet import metrics
-from mepnet.data import (
-    Build,
-    ComponentRef,
-    Manual,
-    ManualFormatError,
-    iter_manual_dirs,
-    load_manual,
-    step_colour,
-)
-from mepnet.geom import BrickGeomError, rotate_lattice
-from mepnet.lift import LIFTS
-from mepnet.predictors import (
-    PREDICTORS,
-    Prediction,
-    Predictor,
-    StepContext,
-    make_predictor,
-    timed_predict,
-)
+from mepnet.cli import run as run_cli
+from mepnet.errors import ConfigError, ManualFormatError
+from mepnet.files import atomic_write_json, check_output_file
+from mepnet.manual import ComponentRef, answers_of, iter_manual_dirs, load_manual
+from mepnet.plan import run_manual
+from mepnet.stage2 import LIFTS, PREDICTORS, Prediction, Predictor, make_predictor
 
 Placement = tuple[_bg.Component, int, tuple[int, int, int]]
 
@@ -193,64 +179,6 @@ def _canonical(
     return sorted(out, key=key), sorted(gt, key=key)
 
 
-def _gt_components(man: Manual) -> dict[ComponentRef, _bg.Component]:
-    comps: dict[ComponentRef, _bg.Component] = {}
-    for b in [man.main] + [s.build for s in man.submodules]:
-        for inst in b.instances:
-            if inst.component not in comps:
-                comps[inst.component] = man.component(inst.component)
-    return comps
-
-
-def _gt_step(build: Build, k: int) -> list[tuple[ComponentRef, int, tuple[int, int, int]]]:
-    return [
-        (build.instances[v.id].component, build.instances[v.id].yaw, build.instances[v.id].t)
-        for v in build.steps[k].views
-    ]
-
-
-def _run_build(
-    predictor: Predictor,
-    build: Build,
-    comps: dict[ComponentRef, _bg.Component],
-    image_size: tuple[int, int],
-    scorer: Scorer | None,
-    autoregressive: bool,
-) -> tuple[list[Placement], int]:
-    """Run a build's steps. With ground-truth bases (scored) or autoregressively (predicted
-    shapes fed forward). Returns the final placements and the number of wrong steps."""
-    gt_all = [(comps[i.component], i.yaw, i.t) for i in build.instances]
-    scale = _diag(gt_all)
-    base = _bg.Assembly()
-    placed: list[Placement] = []
-    wrong = 0
-    for k, step in enumerate(build.steps):
-        ctx = StepContext(
-            step=step, base=base.copy(), components=comps, image_size=image_size, truth=build
-        )
-        preds, dt = timed_predict(predictor, ctx)
-        gt = _gt_step(build, k)
-        if scorer is not None:
-            scorer.seconds.append(dt)
-            supported = [v.attach != "unsupported" for v in step.views]
-            wrong += int(not scorer.step(preds, gt, comps, scale, supported))
-        if autoregressive:
-            for p in preds:
-                if p.t is not None:
-                    try:
-                        base.add(
-                            comps[p.component], p.yaw, p.t, step_colour(build, step, p.component)
-                        )
-                        placed.append((comps[p.component], p.yaw, p.t))
-                    except BrickGeomError:
-                        pass  # stage 2 never collides; another predictor might
-        else:
-            for v in step.views:
-                inst = build.instances[v.id]
-                base.add(comps[inst.component], inst.yaw, inst.t, inst.colour)
-    return placed, wrong
-
-
 def evaluate(
     data: str | os.PathLike[str],
     predictor: Predictor,
@@ -264,40 +192,40 @@ def evaluate(
     dirs = list(iter_manual_dirs(data))
     if not dirs:
         raise ManualFormatError(f"{data}: no manual folders (manual.json) found")
+    manuals = [load_manual(d) for d in dirs]  # every manual checked before the work starts
+    for m in manuals:
+        answers_of(m)
     scorer = Scorer(cd_points)
     mtc, set_cd = [], []
-    for d in tqdm(dirs, unit="manual", disable=not progress, file=sys.stderr):
-        man = load_manual(d)
-        comps = _gt_components(man)
-        wrong = steps = 0
-        for b in [s.build for s in man.submodules] + [man.main]:
-            _, w = _run_build(predictor, b, comps, man.image_size, scorer, autoregressive=False)
-            wrong += w
-            steps += len(b.steps)
-        mtc.append(wrong / max(steps, 1))
+    bar = tqdm(
+        total=sum(len(m.all_steps()) * (2 if autoregressive else 1) for m in manuals),
+        unit="step",
+        disable=not progress,
+        file=sys.stderr,
+    )
+    for man in manuals:
+        answers = answers_of(man)
+        # teacher-forced: every step on the true shape (the paper's Table 1)
+        run = run_manual(man, predictor, teacher_forced=True, on_step=lambda: bar.update(1))
+        comps = run.components
+        wrong = 0
+        for b in run.builds:
+            truth = answers.build(b.key)
+            scale = _diag([(comps[i.component], i.yaw, i.t) for i in truth.instances])
+            for s in b.steps:
+                assert s.truth is not None
+                scorer.seconds.append(s.seconds)
+                gt = [(i.component, i.yaw, i.t) for i in s.truth.placed()]
+                supported = [v.attach != "unsupported" for v in s.truth.answers.views]
+                wrong += int(not scorer.step(s.predictions, gt, comps, scale, supported))
+        mtc.append(wrong / max(len(man.all_steps()), 1))
         if autoregressive:
-            pred_comps = dict(comps)
-            for k, s in enumerate(man.submodules):
-                placed, _ = _run_build(
-                    predictor, s.build, pred_comps, man.image_size, None, autoregressive=True
-                )
-                if placed:
-                    bricks = [
-                        (part, (yaw + by) % 4, rotate_lattice(bt, yaw, t), col)
-                        for comp, yaw, t in placed
-                        for part, by, bt, col in comp.bricks
-                    ]
-                    pred_comps[ComponentRef(submodule=k)] = _bg.Component.from_bricks(
-                        s.name,
-                        [b[0] for b in bricks],
-                        np.array([[b[1], *b[2]] for b in bricks], dtype=np.int64),
-                        [b[3] for b in bricks],
-                    )
-            placed, _ = _run_build(
-                predictor, man.main, pred_comps, man.image_size, None, autoregressive=True
-            )
-            gt_final = [(comps[i.component], i.yaw, i.t) for i in man.main.instances]
+            # the plan a user gets: every step on the predictor's own earlier placements
+            ar = run_manual(man, predictor, on_step=lambda: bar.update(1))
+            placed = [(ar.components[r], y, t) for r, y, t, _ in ar.main.placed()]
+            gt_final = [(comps[i.component], i.yaw, i.t) for i in answers.main.instances]
             set_cd.append(scorer.cd(placed, gt_final, _diag(gt_final)) if placed else float("nan"))
+    bar.close()
 
     def mean(x: list[float]) -> float | None:
         x = [v for v in x if v == v]
@@ -378,7 +306,9 @@ def main(argv: list[str] | None = None) -> int:
     )
     ap.add_argument("--sigma", type=float, default=1.0, help="keypoint noise (px) for oracle-noisy")
     ap.add_argument("--seed", type=int, default=0, help="noise seed for oracle-noisy")
-    ap.add_argument("--time-limit", type=float, default=60.0, help="abys: seconds per component")
+    ap.add_argument(
+        "--time-limit", type=float, default=60.0, help="oracle-abys: seconds per component"
+    )
     ap.add_argument("--cd-points", type=int, default=10_000, help="points sampled per surface")
     ap.add_argument(
         "--weights",
@@ -393,26 +323,29 @@ def main(argv: list[str] | None = None) -> int:
     )
     ap.add_argument("--no-progress", action="store_true")
     args = ap.parse_args(argv)
-    try:
-        if not Path(args.data).is_dir():
-            raise ManualFormatError(f"{args.data}: not a folder")
-        if args.sigma < 0 or args.cd_points < 1 or args.time_limit <= 0:
-            raise ValueError("--sigma must be >= 0, --cd-points >= 1, --time-limit > 0")
-        predictor = make_predictor(
-            args.predictor, args.sigma, args.seed, args.time_limit, args.weights, args.lift
-        )
-        result = evaluate(
-            args.data, predictor, args.autoregressive, args.cd_points, not args.no_progress
-        )
-    except (BrickGeomError, ManualFormatError, ValueError) as e:
-        print(f"mepnet.eval: error: {e}", file=sys.stderr)
-        return 2
+    return run_cli("mepnet.eval", lambda: _main(args))
+
+
+def _main(args: argparse.Namespace) -> int:
+    if not Path(args.data).is_dir():
+        raise ManualFormatError(f"{args.data}: not a folder")
+    if not 1 <= args.cd_points <= 10_000_000:
+        raise ConfigError(f"--cd-points must be within 1..10000000, got {args.cd_points}")
+    if not (math.isfinite(args.sigma) and args.sigma >= 0):
+        raise ConfigError(f"--sigma must be a finite number >= 0, got {args.sigma}")
+    if not (math.isfinite(args.time_limit) and args.time_limit > 0):
+        raise ConfigError(f"--time-limit must be a finite number > 0, got {args.time_limit}")
+    if args.json:
+        check_output_file(args.json)  # before the work, not after it
+    predictor = make_predictor(
+        args.predictor, args.sigma, args.seed, args.time_limit, args.weights, args.lift
+    )
+    result = evaluate(
+        args.data, predictor, args.autoregressive, args.cd_points, not args.no_progress
+    )
     print(format_table([result]))
     if args.json:
-        d = os.path.dirname(os.path.abspath(args.json)) or "."
-        with tempfile.NamedTemporaryFile("w", dir=d, delete=False, suffix=".tmp") as f:
-            json.dump(result, f, indent=1)
-        os.replace(f.name, args.json)
+        atomic_write_json(args.json, result)
     return 0
 
 

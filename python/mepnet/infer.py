@@ -5,7 +5,7 @@
 
 A manual folder (``manual.json`` + step images; with no argument, the example manual bundled in
 the package): the predictor (by default the detector with the bundled slim weights, or
-``--weights``; or ``oracle`` / ``oracle-noisy`` / ``abys``) runs over the manual tree,
+``--weights``; or ``synthesis`` / ``oracle`` / ``oracle-noisy`` / ``oracle-abys``) runs over the manual tree,
 submodules first, on its own predictions, and ``plan.json``, ``plan.mpd`` and step overlays are
 written to ``--out``; a per-step table is printed, with accuracy against the manual's ground
 truth.
@@ -24,7 +24,11 @@ from typing import Any
 
 from mepnet import _brickgeom as _bg
 from mepnet import ldraw
-from mepnet.geom import BrickGeomError, manual_camera, rotate_lattice
+from mepnet.cli import run
+from mepnet.errors import ConfigError, ManualFormatError, OutputError
+from mepnet.files import atomic_folder, check_replaceable
+from mepnet.geom import BrickGeomError, manual_camera, submodule_from_placed
+from mepnet.ldraw.io import build_order
 
 
 def bundled_example() -> Path:
@@ -35,26 +39,6 @@ def bundled_example() -> Path:
 def bundled_manual() -> Path:
     """Path of the bundled example manual folder (the default of ``python -m mepnet.infer``)."""
     return Path(str(resources.files("mepnet") / "data" / "example_manual"))
-
-
-def build_order(checks: list[dict[str, Any]], root: int = 0) -> list[int]:
-    """Model indices with every submodel before the models that use it (``root`` last)."""
-    order: list[int] = []
-    seen: set[int] = set()
-
-    def visit(m: int) -> None:
-        if m in seen:
-            return
-        seen.add(m)
-        for step in checks[m]["items"]:
-            for it in step:
-                if it["kind"] == "submodel":
-                    visit(it["submodel"])
-        order.append(m)
-
-    if checks:
-        visit(root)
-    return order
 
 
 def _step_state(step: dict[str, Any]) -> str:
@@ -93,10 +77,15 @@ def print_plan(file: ldraw.LDrawFile, checks: list[dict[str, Any]]) -> None:
 
 
 def render_steps(file: ldraw.LDrawFile, checks: list[dict[str, Any]], out: Path, size: int) -> int:
-    """Render the cumulative shape after every step of every model; returns images written."""
+    """Render the cumulative shape after every step of every model into the folder ``out``
+    (written atomically); returns the number of images."""
+    with atomic_folder(out, "mepnet.infer (LDraw steps)") as tmp:
+        return _render_steps(checks, tmp, size)
+
+
+def _render_steps(checks: list[dict[str, Any]], out: Path, size: int) -> int:
     from PIL import Image
 
-    out.mkdir(parents=True, exist_ok=True)
     written = 0
     comps: dict[int, _bg.Component] = {}
     lift = 1024  # model frames may reach below y = 0; build high, then drop onto the ground
@@ -141,36 +130,30 @@ def render_steps(file: ldraw.LDrawFile, checks: list[dict[str, Any]], out: Path,
             Image.fromarray(r["rgb"]).save(out / f"{safe}_step_{s + 1:03d}.png")
             written += 1
         if m != 0 and checks[m]["placeable"]:
-            comps[m] = submodule_component(model["name"], [x for step in steps for x in step], lift)
+            placed = [
+                (c, y, (t[0], t[1] - lift, t[2]), col) for step in steps for c, y, t, col in step
+            ]
+            comps[m] = submodule_from_placed(model["name"], placed)
     return written
 
 
-def submodule_component(
-    name: str, placed: list[tuple[_bg.Component, int, tuple[int, int, int], int]], lift: int
-) -> _bg.Component:
-    """A submodule component in its model's own frame from its placed (lifted) components."""
-    import numpy as np
-
-    parts, poses, colours = [], [], []
-    for comp, yaw, t, col in placed:
-        for part, byaw, bt, bcol in comp.bricks:
-            r = rotate_lattice(bt, yaw, t)
-            parts.append(part)
-            poses.append([(yaw + byaw) % 4, r[0], r[1] - lift, r[2]])
-            colours.append(col if bcol == 16 else bcol)
-    return _bg.Component.from_bricks(name, parts, np.array(poses, dtype=np.int64), colours)
-
-
-def run_manual(path: Path, args: argparse.Namespace) -> int:
+def run_manual_folder(path: Path, args: argparse.Namespace) -> int:
     """The manual-folder path: predictor over the manual tree, plan files, per-step table."""
-    from mepnet.data import load_manual
-    from mepnet.plan import write_plan
-    from mepnet.predictors import make_predictor
+    from tqdm import tqdm
+
+    from mepnet.manual import load_manual
+    from mepnet.plan import PLAN_WRITER, run_manual, write_plan
+    from mepnet.stage2 import make_predictor
 
     manual = load_manual(path)
-    predictor = make_predictor(args.predictor, sigma=args.sigma, weights=args.weights)
     out = args.out or Path(f"{path.name}-plan")
-    plan = write_plan(manual, predictor, out)
+    check_replaceable(out, PLAN_WRITER)  # before the work: never replace what is not ours
+    predictor = make_predictor(args.predictor, sigma=args.sigma, weights=args.weights)
+    with tqdm(
+        total=len(manual.all_steps()), unit="step", file=sys.stderr, disable=args.no_progress
+    ) as bar:
+        run = run_manual(manual, predictor, on_step=lambda: bar.update(1))
+    plan = write_plan(run, out)
     print(f"mepnet: manual {path}: predictor {plan['predictor']}")
     for name, steps in [
         *((s["name"], s["steps"]) for s in plan["submodules"]),
@@ -186,25 +169,52 @@ def run_manual(path: Path, args: argparse.Namespace) -> int:
                 lat = (
                     "(" + ", ".join(str(v) for v in c["lattice"]) + ")" if c.get("lattice") else "-"
                 )
-                ok = (
-                    "yes"
-                    if c.get("correct")
-                    else ("FAILED: " + c["failure"] if c.get("failure") else "no")
-                )
+                if c.get("failure"):
+                    ok = "FAILED: " + c["failure"]
+                elif "correct" in c:
+                    ok = "yes" if c["correct"] else "no"
+                else:
+                    ok = "-"
                 label = f"{s['index']:>4}" if j == 0 else "    "
                 print(
                     f"  {label}  {comp[:22]:<22} {c.get('yaw', '-')!s:>3}  {lat:<18} {c.get('attach') or '-':<11} {ok}"
                 )
     total = plan["components"]
+    if "correct" in plan:
+        summary = (
+            f"{plan['correct']}/{total} components exactly right "
+            f"({100 * plan['correct'] / max(total, 1):.1f}%)"
+        )
+    else:
+        summary = f"{plan['placed']}/{total} components placed (the manual has no answers to score)"
+    print(f"\n{summary}; wrote {out}/plan.json, plan.mpd and overlays")
+    return 0
+
+
+def run_ldraw(path: Path, args: argparse.Namespace) -> int:
+    """The LDraw path: the file's own plan, checked step by step; ``--out``: step images."""
+    file = ldraw.read(path)
+    checks = _bg.check_ldraw(file.to_dict())
+    info = ldraw.inspect(file)
     print(
-        f"\n{plan['correct']}/{total} components exactly right ({100 * plan['correct'] / max(total, 1):.1f}%); wrote {out}/plan.json, plan.mpd and overlays"
+        f"mepnet: model {path.name}: {info['models']} models, {info['steps']} steps, "
+        f"{info['parts']} parts ({info['known_parts']} in the library)"
     )
+    print_plan(file, checks)
+    print(
+        f"\n{info['steps_checked']} of {info['steps']} steps checked: {info['steps_valid']} valid, "
+        f"{info['steps_invalid']} invalid, {info['steps_unverified']} unverified"
+    )
+    if args.out:
+        n = render_steps(file, checks, args.out, args.size)
+        print(f"wrote {n} step images to {args.out}")
     return 0
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point; returns the exit status (2 on bad input, with one line on stderr)."""
-    from mepnet.predictors import PREDICTORS
+    """Entry point; returns the exit status (2 on bad input, with one line on stderr; 130 on
+    Ctrl-C)."""
+    from mepnet.stage2 import PREDICTORS
 
     ap = argparse.ArgumentParser(prog="python -m mepnet.infer", description=__doc__.splitlines()[0])
     ap.add_argument(
@@ -215,13 +225,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument(
         "--out",
         type=Path,
-        help="output folder (plan files for a manual; step images for an LDraw model)",
+        help="output folder (plan files for a manual; step images for an LDraw model); an "
+        "existing folder is replaced only when it is an earlier output nobody added to",
     )
     ap.add_argument(
         "--size",
         type=int,
         default=256,
-        help="image size in pixels for LDraw step images (default 256)",
+        help="image size in pixels for LDraw step images (16..2048, default 256)",
     )
     ap.add_argument(
         "--predictor",
@@ -237,40 +248,29 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument(
         "--sigma", type=float, default=1.0, help="keypoint noise for --predictor oracle-noisy"
     )
+    ap.add_argument("--no-progress", action="store_true", help="no progress bar")
     args = ap.parse_args(argv)
+    return run("mepnet.infer", lambda: _main(args))
+
+
+def _main(args: argparse.Namespace) -> int:
+    if not 16 <= args.size <= 2048:
+        raise ConfigError(f"--size must be within 16..2048 pixels, got {args.size}")
     path = Path(args.model) if args.model else bundled_manual()
     if args.model is None:
         print(f"mepnet: the bundled example manual ({path}) with the shipped slim detector")
         args.out = args.out or Path("mepnet-example-plan")
+    if args.out is not None:
+        check_replaceable(
+            args.out, "mepnet.infer" if path.is_dir() else "mepnet.infer (LDraw steps)"
+        )
+        if args.out.resolve() == path.resolve():
+            raise OutputError(f"{args.out}: is the input itself (choose a new --out)")
     if path.is_dir():
-        try:
-            return run_manual(path, args)
-        except (BrickGeomError, ValueError, OSError) as e:
-            print(f"mepnet.infer: error: {e}", file=sys.stderr)
-            return 2
-    try:
-        file = ldraw.read(path)
-        checks = _bg.check_ldraw(file.to_dict())
-        info = ldraw.inspect(file)
-        print(
-            f"mepnet: model {path.name}: {info['models']} models, {info['steps']} steps, "
-            f"{info['parts']} parts ({info['known_parts']} in the library)"
-        )
-        print_plan(file, checks)
-        print(
-            f"\n{info['steps_checked']} of {info['steps']} steps checked: {info['steps_valid']} valid, "
-            f"{info['steps_invalid']} invalid, {info['steps_unverified']} unverified"
-        )
-        if args.out:
-            n = render_steps(file, checks, args.out, args.size)
-            print(f"wrote {n} step images to {args.out}")
-    except BrickGeomError as e:
-        print(f"mepnet.infer: error: {e}", file=sys.stderr)
-        return 2
-    except OSError as e:
-        print(f"mepnet.infer: error: {e.filename or path}: {e.strerror or e}", file=sys.stderr)
-        return 2
-    return 0
+        return run_manual_folder(path, args)
+    if not path.exists():
+        raise ManualFormatError(f"{path}: no such manual folder or LDraw file")
+    return run_ldraw(path, args)
 
 
 if __name__ == "__main__":

@@ -1,26 +1,188 @@
-"""Build plans: run a predictor over a whole manual (submodules first, predictions fed forward)
-and write ``plan.json``, ``plan.mpd`` (LDraw, opens in LeoCAD/LDView/LPub3D/Studio and reads
-back with :mod:`mepnet.ldraw`) and step overlay images."""
+"""Build plans: the one loop that runs a predictor over a whole manual, and the files a plan
+is written as.
+
+:func:`run_manual` builds the submodules first (their predicted shapes become the components
+of later steps), then the main model, each step on the shape built so far: the predictor's own
+earlier predictions (autoregressive, what a user gets: :mod:`mepnet.infer`), or with
+``teacher_forced=True`` the true shapes (the paper's Table 1 protocol: :mod:`mepnet.eval`).
+Predictors see only the page; oracles are handed the step's answers (``predict_step``).
+
+:func:`write_plan` writes ``plan.json``, ``plan.mpd`` (LDraw: opens in LeoCAD, LDView, LPub3D
+and Studio, and reads back with :mod:`mepnet.ldraw`) and step overlay images, atomically.
+"""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
-import shutil
-import tempfile
-import time
-from pathlib import Path
+from collections.abc import Callable
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from mepnet import _brickgeom as _bg
-from mepnet import ldraw
-from mepnet.data import Build, ComponentRef, Manual, step_colour
-from mepnet.geom import BrickGeomError, rotate_lattice
-from mepnet.predictors import Prediction, Predictor, StepContext
+from mepnet.files import atomic_folder
+from mepnet.geom import BrickGeomError, submodule_from_placed
+from mepnet.ldraw.io import LDrawFile, LDrawModel, LDrawRef, ldraw_placement
+from mepnet.ldraw.io import write as write_ldraw
+from mepnet.manual import Build, ComponentRef, Manual, StepTruth
+from mepnet.stage2 import Prediction, Predictor, StepContext, predict_step
 
 PLAN_SCHEMA = "mepnet.plan"
+
+#: A placed component: (reference, yaw, t, colour).
+Placed = tuple[ComponentRef, int, tuple[int, int, int], int]
+
+
+@dataclass
+class StepRun:
+    """One step as the loop ran it."""
+
+    index: int
+    image: str
+    predictions: list[Prediction]
+    #: per prediction: the placement added to the shape (None: not placed)
+    placed: list[Placed | None]
+    seconds: float
+    #: the step's answers (None for a manual without answers)
+    truth: StepTruth | None = None
+
+
+@dataclass
+class BuildRun:
+    """A build (submodule ``key``, or the main model: None) as the loop ran it."""
+
+    key: int | None
+    build: Build
+    steps: list[StepRun] = field(default_factory=list)
+
+    @property
+    def name(self) -> str:
+        """The build's name (``main`` for the main model)."""
+        return self.build.name
+
+    def placed(self) -> list[Placed]:
+        """Everything the build placed, in order."""
+        return [p for s in self.steps for p in s.placed if p is not None]
+
+
+@dataclass
+class ManualRun:
+    """A whole manual as the loop ran it: builds in build order (submodules, then main)."""
+
+    manual: Manual
+    predictor: str
+    teacher_forced: bool
+    builds: list[BuildRun]
+    components: dict[ComponentRef, _bg.Component]
+
+    @property
+    def main(self) -> BuildRun:
+        """The main model's run."""
+        return self.builds[-1]
+
+
+def _missing_entries(
+    ctx_components: dict[ComponentRef, _bg.Component], run_step: Any
+) -> tuple[Any, list[int]]:
+    """The page step without callout entries whose component does not exist (a submodule
+    whose build placed nothing), and the original indices of the entries kept."""
+    keep = [k for k, c in enumerate(run_step.components) if c.component in ctx_components]
+    if len(keep) == len(run_step.components):
+        return run_step, keep
+    return dataclasses.replace(run_step, components=[run_step.components[k] for k in keep]), keep
+
+
+def run_build(
+    predictor: Predictor,
+    manual: Manual,
+    key: int | None,
+    components: dict[ComponentRef, _bg.Component],
+    teacher_forced: bool = False,
+    on_step: Callable[[], None] | None = None,
+) -> BuildRun:
+    """Run every step of one build (see :func:`run_manual`)."""
+    build = manual.main if key is None else manual.submodules[key]
+    answers = manual.answers.build(key) if manual.answers is not None else None
+    if teacher_forced and answers is None:
+        from mepnet.errors import ManualFormatError
+
+        raise ManualFormatError(f"{manual.path}: teacher forcing needs the manual's answers")
+    run = BuildRun(key, build)
+    base = _bg.Assembly()
+    for k, step in enumerate(build.steps):
+        truth = full_truth = answers.truth(k) if answers is not None else None
+        if teacher_forced:
+            base = answers.assembly_before(k, components)  # type: ignore[union-attr]
+        page_step, kept = _missing_entries(components, step)
+        ctx = StepContext(page_step, base.copy(), components, manual.image_size)
+        if truth is not None and len(kept) != len(step.components):
+            truth = StepTruth(
+                dataclasses.replace(
+                    truth.answers, instances_of=[truth.instances_of[i] for i in kept]
+                ),
+                truth.instances,
+            )
+        preds, seconds = predict_step(predictor, ctx, truth)
+        # back to the page's entry numbering, and a failure for every entry left out
+        preds = [dataclasses.replace(p, entry=kept[p.entry]) for p in preds]
+        for e, c in enumerate(step.components):
+            if e not in kept:
+                why = f"submodule {manual.submodules[c.component.submodule].name} was not built"  # type: ignore[index]
+                preds += [
+                    Prediction(e, c.component, None, None, failure=why) for _ in range(c.count)
+                ]
+        placed: list[Placed | None] = []
+        for p in preds:
+            pl: Placed | None = None
+            if p.placed and p.failure is None:
+                colour = step.components[p.entry].colour
+                try:
+                    base.add(components[p.component], p.yaw, p.t, colour)
+                    pl = (p.component, int(p.yaw), tuple(p.t), colour)  # type: ignore[arg-type]
+                except BrickGeomError as e:  # a predictor other than stage 2 may collide
+                    p.failure = str(e)
+            placed.append(pl)
+        run.steps.append(StepRun(k + 1, step.image_path.name, preds, placed, seconds, full_truth))
+        if on_step is not None:
+            on_step()
+    return run
+
+
+def run_manual(
+    manual: Manual,
+    predictor: Predictor,
+    teacher_forced: bool = False,
+    on_step: Callable[[], None] | None = None,
+) -> ManualRun:
+    """Run ``predictor`` over every build of ``manual``: submodules first, then the main model.
+    Autoregressive (default): every step on the predictor's own earlier placements, a
+    submodule used as the shape its own steps built. ``teacher_forced``: every step on the true
+    shape, submodules as they truly are (needs the answers). ``on_step`` is called after every
+    step (progress bars)."""
+    if teacher_forced:
+        from mepnet.manual import answers_of
+
+        components = answers_of(manual).components(manual)
+    else:
+        components = manual.primitive_components()
+    runs = []
+    for key, _ in manual.builds():
+        run = run_build(predictor, manual, key, components, teacher_forced, on_step)
+        runs.append(run)
+        if key is not None and not teacher_forced:
+            placed = run.placed()
+            if placed:
+                components[ComponentRef(submodule=key)] = submodule_from_placed(
+                    run.name, [(components[r], y, t, c) for r, y, t, c in placed]
+                )
+    return ManualRun(manual, predictor.name, teacher_forced, runs, components)
+
+
+# ---------------------------------------------------------------------------------------------
+# The plan as files
 
 
 def _ref_json(ref: ComponentRef, manual: Manual) -> dict[str, Any]:
@@ -29,168 +191,94 @@ def _ref_json(ref: ComponentRef, manual: Manual) -> dict[str, Any]:
     return {"submodule": ref.submodule, "name": manual.submodules[int(ref.submodule)].name}  # type: ignore[arg-type]
 
 
-def run_build(
-    predictor: Predictor,
-    manual: Manual,
-    build: Build,
-    comps: dict[ComponentRef, _bg.Component],
-) -> tuple[list[dict[str, Any]], list[tuple[ComponentRef, int, tuple[int, int, int], int]]]:
-    """Predict every step of a build on its own predictions. Returns per-step records and the
-    placed instances (ref, yaw, t, colour)."""
-    base = _bg.Assembly()
-    steps = []
-    placed = []
-    for k, step in enumerate(build.steps):
-        ctx = StepContext(
-            step=step, base=base.copy(), components=comps, image_size=manual.image_size, truth=build
-        )
-        t0 = time.perf_counter()
-        preds: list[Prediction] = predictor.predict(ctx)
-        dt = time.perf_counter() - t0
-        truth = {
-            (build.instances[v.id].component, build.instances[v.id].yaw, build.instances[v.id].t)
-            for v in step.views
-        }
-        records = []
-        for p in preds:
-            rec: dict[str, Any] = {
-                "component": _ref_json(p.component, manual),
-                "attach": p.attach,
-                "failure": p.failure,
-            }
-            if p.t is not None:
-                pos, mat = ldraw.ldraw_placement(p.yaw, p.t)
-                rec.update(yaw=p.yaw, lattice=list(p.t), ldu={"position": pos, "matrix": mat})
-                err = p.extra.get("error_px")
-                rec["confidence"] = float(np.exp(-(err or 0.0) / 2.0)) if err is not None else None
-                comp = comps[p.component]
-                rec["correct"] = any(
-                    r == p.component and comp.same_placement(y, t, p.yaw, p.t) for r, y, t in truth
-                )
-                colour = step_colour(build, step, p.component)
-                try:
-                    base.add(comp, p.yaw, p.t, colour)
-                    placed.append((p.component, p.yaw, p.t, colour))
-                except BrickGeomError as e:  # a predictor other than stage 2 may collide
-                    rec["failure"] = str(e)
-            records.append(rec)
-        steps.append(
-            {"index": k + 1, "image": step.image_path.name, "seconds": dt, "components": records}
-        )
-    return steps, placed
-
-
-def submodule_component(
-    name: str,
-    placed: list[tuple[ComponentRef, int, tuple[int, int, int], int]],
-    comps: dict[ComponentRef, _bg.Component],
-) -> _bg.Component | None:
-    """A predicted submodule as a component (its bricks in its own frame)."""
-    bricks = [
-        (part, (yaw + by) % 4, rotate_lattice(bt, yaw, t), col if bcol == 16 else bcol)
-        for ref, yaw, t, col in placed
-        for part, by, bt, bcol in comps[ref].bricks
-    ]
-    if not bricks:
-        return None
-    return _bg.Component.from_bricks(
-        name,
-        [b[0] for b in bricks],
-        np.array([[b[1], *b[2]] for b in bricks], dtype=np.int64),
-        [b[3] for b in bricks],
+def correct(run: ManualRun, step: StepRun, p: Prediction) -> bool | None:
+    """Whether a prediction equals one of its step's true placements (None without answers)."""
+    if step.truth is None or not p.placed:
+        return None if step.truth is None else False
+    comp = run.components[p.component]
+    return any(
+        i.component == p.component and comp.same_placement(i.yaw, i.t, p.yaw, p.t)
+        for i in step.truth.placed()
     )
 
 
-def make_plan(
-    manual: Manual, predictor: Predictor
-) -> tuple[dict[str, Any], dict[ComponentRef, _bg.Component], dict[str, list]]:
-    """The plan of a whole manual: submodules first (their predicted shapes become the
-    components of later steps), then the main model."""
-    comps: dict[ComponentRef, _bg.Component] = {}
-    for b in [manual.main] + [s.build for s in manual.submodules]:
-        for inst in b.instances:
-            if inst.component.part is not None:
-                comps.setdefault(inst.component, _bg.Component.primitive(inst.component.part))
-    placed_by_build: dict[str, list] = {}
-    subs = []
-    for k, sub in enumerate(manual.submodules):
-        steps, placed = run_build(predictor, manual, sub.build, comps)
-        placed_by_build[sub.name] = placed
-        comp = submodule_component(sub.name, placed, comps) or sub.component()
-        comps[ComponentRef(submodule=k)] = comp
-        subs.append({"name": sub.name, "steps": steps})
-    steps, placed = run_build(predictor, manual, manual.main, comps)
-    placed_by_build["main"] = placed
-    n = sum(len(s["components"]) for b in [*subs, {"steps": steps}] for s in b["steps"])
-    correct = sum(
-        bool(c.get("correct"))
-        for b in [*subs, {"steps": steps}]
-        for s in b["steps"]
-        for c in s["components"]
-    )
-    plan = {
+def plan_json(run: ManualRun) -> dict[str, Any]:
+    """The plan document (``plan.json``)."""
+    manual = run.manual
+
+    def steps(b: BuildRun) -> list[dict[str, Any]]:
+        out = []
+        for s in b.steps:
+            records = []
+            for p, pl in zip(s.predictions, s.placed, strict=True):
+                rec: dict[str, Any] = {
+                    "component": _ref_json(p.component, manual),
+                    "colour": b.build.steps[s.index - 1].components[p.entry].colour,
+                    "attach": p.attach,
+                    "failure": p.failure,
+                }
+                if pl is not None:
+                    pos, mat = ldraw_placement(pl[1], pl[2])
+                    rec.update(yaw=pl[1], lattice=list(pl[2]), ldu={"position": pos, "matrix": mat})
+                    err = p.extra.get("error_px")
+                    rec["confidence"] = float(np.exp(-err / 2.0)) if err is not None else None
+                ok = correct(run, s, p)
+                if ok is not None:
+                    rec["correct"] = ok
+                records.append(rec)
+            out.append(
+                {"index": s.index, "image": s.image, "seconds": s.seconds, "components": records}
+            )
+        return out
+
+    recs = [c for b in run.builds for s in steps(b) for c in s["components"]]
+    doc: dict[str, Any] = {
         "schema": PLAN_SCHEMA,
         "version": 1,
         "manual": str(manual.path),
-        "predictor": predictor.name,
+        "predictor": run.predictor,
         "units": {
             "lattice": "x, z half-studs (10 LDU), y plates (8 LDU), y up",
             "ldu": "LDraw frame, y down",
         },
-        "submodules": subs,
-        "steps": steps,
-        "components": n,
-        "correct": correct,
+        "submodules": [{"name": b.name, "steps": steps(b)} for b in run.builds[:-1]],
+        "steps": steps(run.main),
+        "components": len(recs),
+        "placed": sum(1 for c in recs if c.get("lattice") is not None),
     }
-    return plan, comps, placed_by_build
+    if manual.answers is not None:
+        doc["correct"] = sum(1 for c in recs if c.get("correct"))
+    return doc
 
 
-def plan_ldraw(
-    manual: Manual, placed_by_build: dict[str, list], steps_by_build: dict[str, list]
-) -> ldraw.LDrawFile:
+def plan_ldraw(run: ManualRun) -> LDrawFile:
     """The plan as an LDraw file: the main model, one submodel per submodule, one step per
     manual step."""
 
-    def model(name: str, placed: list, steps: list[dict[str, Any]]) -> ldraw.LDrawModel:
-        it = iter(placed)
+    def model(b: BuildRun, name: str) -> LDrawModel:
         out_steps = []
-        for s in steps:
+        for s in b.steps:
             refs = []
-            for c in s["components"]:
-                if c.get("lattice") is None or c.get("failure"):
-                    continue
-                ref, yaw, t, colour = next(it)
-                pos, mat = ldraw.ldraw_placement(yaw, t)
-                if ref.part is not None:
-                    refs.append(
-                        ldraw.LDrawRef(
-                            name=f"{ref.part}.dat",
-                            colour=colour,
-                            position=tuple(pos),
-                            matrix=tuple(tuple(r) for r in mat),
-                        )
+            for ref, yaw, t, colour in (pl for pl in s.placed if pl is not None):
+                pos, mat = ldraw_placement(yaw, t)
+                is_sub = ref.part is None
+                refs.append(
+                    LDrawRef(
+                        name=f"{ref.part}.dat"
+                        if not is_sub
+                        else run.manual.submodules[int(ref.submodule)].name.lower(),  # type: ignore[arg-type]
+                        colour=colour,
+                        position=tuple(pos),  # type: ignore[arg-type]
+                        matrix=tuple(tuple(r) for r in mat),  # type: ignore[arg-type]
+                        is_submodel=is_sub,
                     )
-                else:
-                    sub = manual.submodules[int(ref.submodule)].name  # type: ignore[arg-type]
-                    refs.append(
-                        ldraw.LDrawRef(
-                            name=sub.lower(),
-                            colour=colour,
-                            position=tuple(pos),
-                            matrix=tuple(tuple(r) for r in mat),
-                            is_submodel=True,
-                        )
-                    )
+                )
             if refs:
                 out_steps.append(refs)
-        return ldraw.LDrawModel(name=name, steps=out_steps, title=f"mepnet plan: {name}")
+        return LDrawModel(name=name, steps=out_steps, title=f"mepnet plan: {name}")
 
-    models = [model("main.ldr", placed_by_build["main"], steps_by_build["main"])]
-    models += [
-        model(s.name.lower(), placed_by_build[s.name], steps_by_build[s.name])
-        for s in manual.submodules
-    ]
-    return ldraw.LDrawFile(name="plan.mpd", models=models)
+    models = [model(run.main, "main.ldr")] + [model(b, b.name.lower()) for b in run.builds[:-1]]
+    return LDrawFile(name="plan.mpd", models=models)
 
 
 def overlay(
@@ -219,41 +307,26 @@ def overlay(
     return out
 
 
-def write_plan(manual: Manual, predictor: Predictor, out: str | os.PathLike[str]) -> dict[str, Any]:
-    """Run the predictor over the manual and write plan.json, plan.mpd and overlays to ``out``
-    (atomically: a temporary folder renamed at the end; an existing ``out`` is replaced)."""
+#: The writer name in the manifest of plan folders (:mod:`mepnet.files`).
+PLAN_WRITER = "mepnet.infer"
+
+
+def write_plan(run: ManualRun, out: str | os.PathLike[str]) -> dict[str, Any]:
+    """Write plan.json, plan.mpd and overlays to the folder ``out`` atomically (an existing
+    ``out`` is replaced only when it is an earlier plan folder nobody added to). Returns the
+    plan document."""
     from PIL import Image
 
-    out = Path(out)
-    plan, comps, placed = make_plan(manual, predictor)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".tmp-{out.name}-", dir=out.parent))
-    try:
-        steps_by_build = {
-            "main": plan["steps"],
-            **{s["name"]: s["steps"] for s in plan["submodules"]},
-        }
-        ldraw.write(tmp / "plan.mpd", plan_ldraw(manual, placed, steps_by_build))
+    plan = plan_json(run)
+    with atomic_folder(out, PLAN_WRITER) as tmp:
+        write_ldraw(tmp / "plan.mpd", plan_ldraw(run))
         (tmp / "plan.json").write_text(json.dumps(plan, indent=1) + "\n")
-        builds = [("main", manual.main)] + [(s.name, s.build) for s in manual.submodules]
-        for name, build in builds:
-            it = iter(placed[name])
+        for b in run.builds:
             prefix = (
-                "" if name == "main" else "".join(c if c.isalnum() else "_" for c in name) + "_"
+                "" if b.key is None else "".join(c if c.isalnum() else "_" for c in b.name) + "_"
             )
-            for s, step in zip(steps_by_build[name], build.steps, strict=True):
-                new = []
-                for c in s["components"]:
-                    if c.get("lattice") is None or c.get("failure"):
-                        continue
-                    ref, yaw, t, _ = next(it)
-                    new.append((comps[ref], yaw, t))
+            for s, step in zip(b.steps, b.build.steps, strict=True):
+                new = [(run.components[r], y, t) for r, y, t, _ in (p for p in s.placed if p)]
                 img = overlay(step.image(), new, step.camera_object())
-                Image.fromarray(img).save(tmp / f"{prefix}overlay_{s['index']:03d}.png")
-        if out.exists():
-            shutil.rmtree(out)
-        os.replace(tmp, out)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
+                Image.fromarray(img).save(tmp / f"{prefix}overlay_{s.index:03d}.png")
     return plan

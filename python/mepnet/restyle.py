@@ -16,14 +16,16 @@ from __future__ import annotations
 import argparse
 import json
 import shutil
-import sys
 import zlib
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from mepnet.data import ManualFormatError, iter_manual_dirs, load_manual
+from mepnet.cli import run
+from mepnet.errors import ConfigError
+from mepnet.files import atomic_folder
+from mepnet.manual import answers_of, iter_manual_dirs, load_manual
 
 #: What a style may change (``--only`` picks a subset).
 FACTORS = ("gamma", "sat", "page", "lines", "blur")
@@ -47,7 +49,7 @@ def restyle_image(
 ) -> np.ndarray:
     """One step image (H, W, 3 uint8; ``ids`` its instance map, -1 on the page) in ``style``
     (only the factors it names)."""
-    from mepnet.model.targets import blur, restyle_lines
+    from mepnet.detector.targets import blur, restyle_lines
 
     img = rgb.astype(np.float32)
     if "gamma" in style:
@@ -65,25 +67,34 @@ def restyle_image(
 
 
 def restyle_manual(src: Path, out: Path, only: tuple[str, ...], strength: float, seed: int) -> int:
-    """Write ``out`` (must not exist) as ``src`` redrawn; returns the number of images."""
+    """Write ``out`` (must not exist) as ``src`` redrawn; returns the number of images. Lines
+    are redrawn along the instance map's edges, so the manual needs its answers."""
     from PIL import Image
 
     manual = load_manual(src)  # checks the folder and lists every step image
+    answers = answers_of(manual)
     rng = np.random.default_rng([seed, zlib.crc32(src.name.encode())])
     style = {k: v for k, v in draw_style(rng, strength).items() if k in only}
-    tmp = out.with_name(f".tmp-{out.name}")
-    shutil.rmtree(tmp, ignore_errors=True)
-    shutil.copytree(src, tmp)
-    steps = manual.all_steps()
-    for step in steps:
-        rel = step.image_path.relative_to(src)
-        rgb = step.image()
-        img_rng = np.random.default_rng([seed, zlib.crc32(str(rel).encode())])
-        Image.fromarray(restyle_image(rgb, step.ids(), style, img_rng)).save(tmp / rel)
-    doc = json.loads((tmp / "manual.json").read_text())
-    doc.setdefault("source", {})["restyle"] = {"seed": seed, "strength": strength, **style}
-    (tmp / "manual.json").write_text(json.dumps(doc, indent=1) + "\n")
-    tmp.rename(out)
+    steps = [
+        (step, answers.build(key).steps[k])
+        for key, build in manual.builds()
+        for k, step in enumerate(build.steps)
+    ]
+    with atomic_folder(out, "mepnet.restyle", replace=False) as tmp:
+        for p in src.iterdir():
+            if p.is_file() and not p.name.startswith("."):
+                shutil.copyfile(p, tmp / p.name)
+        for step, ans in steps:
+            rel = step.image_path.relative_to(src)
+            (tmp / rel).parent.mkdir(parents=True, exist_ok=True)
+            if ans.ids_path is not None and ans.ids_path.parent != src:
+                (tmp / ans.ids_path.relative_to(src)).parent.mkdir(parents=True, exist_ok=True)
+                shutil.copyfile(ans.ids_path, tmp / ans.ids_path.relative_to(src))
+            img_rng = np.random.default_rng([seed, zlib.crc32(str(rel).encode())])
+            Image.fromarray(restyle_image(step.image(), ans.ids(), style, img_rng)).save(tmp / rel)
+        doc = json.loads((tmp / "manual.json").read_text())
+        doc.setdefault("source", {})["restyle"] = {"seed": seed, "strength": strength, **style}
+        (tmp / "manual.json").write_text(json.dumps(doc, indent=1) + "\n")
     return len(steps)
 
 
@@ -104,38 +115,31 @@ def build_parser() -> argparse.ArgumentParser:
     return ap
 
 
-def _fail(msg: str) -> int:
-    print(f"mepnet.restyle: error: {msg}", file=sys.stderr)
-    return 2
-
-
 def main(argv: list[str] | None = None) -> int:
     """Entry point; returns the exit status (2 on bad input, with one line on stderr)."""
     args = build_parser().parse_args(argv)
+    return run("mepnet.restyle", lambda: _main(args))
+
+
+def _main(args: argparse.Namespace) -> int:
     only = tuple(f for f in args.only.split(",") if f)
     unknown = [f for f in only if f not in FACTORS]
     if unknown or not only:
-        return _fail(f"--only: unknown factor(s) {unknown or only} (choose from {FACTORS})")
+        raise ConfigError(f"--only: unknown factor(s) {unknown or only} (choose from {FACTORS})")
     if not (0.0 <= args.strength <= 2.0):
-        return _fail(f"--strength must be within 0..2, got {args.strength}")
+        raise ConfigError(f"--strength must be within 0..2, got {args.strength}")
     if not args.data.is_dir():
-        return _fail(f"--data {args.data}: not a folder")
+        raise ConfigError(f"--data {args.data}: not a folder")
     manuals = list(iter_manual_dirs(args.data))
     if not manuals:
-        return _fail(f"--data {args.data}: no manual folders (manual.json) there")
-    try:
-        args.out.mkdir(parents=True, exist_ok=True)
-    except OSError as e:
-        return _fail(f"{args.out}: cannot write there ({e.strerror or e})")
+        raise ConfigError(f"--data {args.data}: no manual folders (manual.json) there")
+    args.out.mkdir(parents=True, exist_ok=True)
     done = 0
     for src in manuals:
         out = args.out / src.name
         if out.exists():
             continue
-        try:
-            restyle_manual(src, out, only, args.strength, args.seed)
-        except (ManualFormatError, OSError, ValueError) as e:
-            return _fail(f"{src}: {e}")
+        restyle_manual(src, out, only, args.strength, args.seed)
         done += 1
     print(f"restyled {done} manual(s) into {args.out} ({len(manuals) - done} already there)")
     return 0

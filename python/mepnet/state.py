@@ -10,31 +10,23 @@ import numpy as np
 
 from mepnet import _brickgeom as _bg
 from mepnet.geom import LDU_PER_CELL
+from mepnet.manual.page import make_camera
 
 __all__ = [
+    "CHANGE_THRESHOLD",
     "STATE_MAPS",
     "change_map",
     "fit_gain_bias",
     "fit_tone",
-    "make_camera",
     "outline_of",
     "state_projection",
     "state_render",
 ]
 
+#: A pixel of the change map above this is part of something new.
+CHANGE_THRESHOLD = 0.15
 #: Channels of the rendered state maps (see :func:`state_projection` and :func:`change_map`).
 STATE_MAPS = 10
-
-
-def make_camera(camera: dict[str, Any]) -> _bg.Camera:
-    """The brickgeom camera of a manual step's camera dict."""
-    return _bg.Camera(
-        camera["elevation"],
-        camera["azimuth"],
-        camera["roll"],
-        camera["scale"],
-        tuple(camera["translation"]),
-    )
 
 
 def outline_of(ids: np.ndarray) -> np.ndarray:

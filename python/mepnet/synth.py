@@ -15,15 +15,44 @@ import argparse
 import json
 import multiprocessing
 import os
-import shutil
 import sys
 import time
 from pathlib import Path
 from typing import Any
 
+from mepnet.cli import INTERRUPTED, quiet_interrupts_in_workers, run, workers_ignore_interrupts
+from mepnet.errors import ConfigError
+from mepnet.files import remove_stale_temporaries
 from mepnet.geom import BrickGeomError
+from mepnet.manual.io import write_manual
 
 MAX_SIZE = 2048
+
+
+def read_generator_settings(path: Path) -> dict[str, Any]:
+    """Generator settings from a JSON file (``--config``): an object whose ranges (``[lo,
+    hi]``) become the pairs the generator takes. Checked by :func:`check_generator_settings`."""
+    try:
+        config = json.loads(path.read_text())
+    except OSError as e:
+        raise ConfigError(f"{path}: {e.strerror or e}") from None
+    except (ValueError, UnicodeDecodeError) as e:
+        raise ConfigError(f"{path}: not valid JSON ({e})") from None
+    if not isinstance(config, dict):
+        raise ConfigError(f"{path}: expected a JSON object of generator settings")
+    return {k: tuple(v) if isinstance(v, list) else v for k, v in config.items()}
+
+
+def check_generator_settings(config: dict[str, Any]) -> None:
+    """The one probe of generator settings: generate a tiny manual with them, in this process,
+    before any worker starts; a bad setting is a :class:`~mepnet.errors.ConfigError`."""
+    from mepnet import _brickgeom as _bg
+
+    probe = {**config, "image_size": 16, "components": (1, 2), "p_submodule": 0.0}
+    try:
+        _bg.synth_manual(0, probe)
+    except (BrickGeomError, ValueError, TypeError, OverflowError) as e:
+        raise ConfigError(f"generator settings: {e}") from None
 
 
 def manual_dir(out: Path, seed: int) -> Path:
@@ -34,13 +63,12 @@ def manual_dir(out: Path, seed: int) -> Path:
 def generate_one(seed: int, out: Path, config: dict[str, Any], ldraw_dir: str | None) -> int:
     """Generate, render and write one manual; returns its number of steps (main + submodules)."""
     from mepnet import _brickgeom as _bg
-    from mepnet.data import write_manual
 
     manual = _bg.synth_manual(seed, config, ldraw_dir)
     source = {"kind": "synthetic", "seed": seed, "generator": config, "renderer": "brickgeom"}
     if ldraw_dir is not None:
         source["part_geometry"] = "ldraw"
-    write_manual(manual_dir(out, seed), manual, source)
+    write_manual(manual_dir(out, seed), manual, source, writer="mepnet.synth")
     return len(manual["main"]["steps"]) + sum(
         len(s["build"]["steps"]) for s in manual["submodules"]
     )
@@ -50,6 +78,7 @@ def _worker_init() -> None:
     # Several worker processes already use every core; one rayon thread each avoids
     # oversubscription. Set before the extension's thread pool starts in this process.
     os.environ.setdefault("RAYON_NUM_THREADS", "1")
+    quiet_interrupts_in_workers()
 
 
 def _job(args: tuple[int, str, dict[str, Any], str | None]) -> tuple[int, int]:
@@ -78,51 +107,39 @@ def build_parser() -> argparse.ArgumentParser:
     return ap
 
 
-def _fail(msg: str) -> int:
-    print(f"mepnet.synth: error: {msg}", file=sys.stderr)
-    return 2
-
-
 def main(argv: list[str] | None = None) -> int:
-    """Entry point; returns the exit status (2 on bad input, with one line on stderr)."""
+    """Entry point; returns the exit status (2 on bad input, with one line on stderr; 130 on
+    Ctrl-C, after which the same command finishes the job)."""
     args = build_parser().parse_args(argv)
+    return run("mepnet.synth", lambda: _main(args))
+
+
+def _main(args: argparse.Namespace) -> int:
     if args.manuals < 1:
-        return _fail(f"--manuals must be at least 1, got {args.manuals}")
+        raise ConfigError(f"--manuals must be at least 1, got {args.manuals}")
     if args.seed < 0 or args.seed + args.manuals > 2**63:
-        return _fail(f"--seed must be a non-negative 64-bit integer, got {args.seed}")
+        raise ConfigError(f"--seed must be a non-negative 64-bit integer, got {args.seed}")
     if not 16 <= args.size <= MAX_SIZE:
-        return _fail(f"--size must be within 16..{MAX_SIZE} pixels, got {args.size}")
+        raise ConfigError(f"--size must be within 16..{MAX_SIZE} pixels, got {args.size}")
     if args.workers < 1:
-        return _fail(f"--workers must be at least 1, got {args.workers}")
+        raise ConfigError(f"--workers must be at least 1, got {args.workers}")
     if args.ldraw_dir is not None and not (Path(args.ldraw_dir) / "parts").is_dir():
-        return _fail(f"--ldraw-dir {args.ldraw_dir}: not an LDraw library (no parts/ folder)")
-    config: dict[str, Any] = {}
-    if args.config is not None:
-        try:
-            config = json.loads(args.config.read_text())
-        except (OSError, json.JSONDecodeError) as e:
-            return _fail(f"{args.config}: {e}")
-        if not isinstance(config, dict):
-            return _fail(f"{args.config}: expected a JSON object of settings")
+        raise ConfigError(f"--ldraw-dir {args.ldraw_dir}: not an LDraw library (no parts/ folder)")
+    config = read_generator_settings(args.config) if args.config is not None else {}
     config["image_size"] = args.size
     config["supersample"] = args.supersample
+    if args.out.exists() and not args.out.is_dir():
+        raise ConfigError(f"{args.out}: exists and is not a folder")
     try:
         args.out.mkdir(parents=True, exist_ok=True)
         probe = args.out / f".write-test-{os.getpid()}"
         probe.write_text("")
         probe.unlink()
     except OSError as e:
-        return _fail(f"{args.out}: cannot write there ({e.strerror or e})")
-    # Validate settings once, in this process, with a tiny manual, before starting workers.
-    try:
-        from mepnet import _brickgeom as _bg
-
-        _bg.synth_manual(0, {**config, "image_size": 16, "components": (1, 2), "p_submodule": 0.0})
-    except (BrickGeomError, ValueError, TypeError) as e:
-        return _fail(f"generator settings: {e}")
-    # Leftovers of interrupted runs: temporary folders are never valid manuals.
-    for stale in args.out.glob(".tmp-manual_*"):
-        shutil.rmtree(stale, ignore_errors=True)
+        raise ConfigError(f"{args.out}: cannot write there ({e.strerror or e})") from None
+    check_generator_settings(config)
+    # leftovers of killed runs (never those of a run still going into the same folder)
+    remove_stale_temporaries(args.out)
     seeds = [
         s
         for s in range(args.seed, args.seed + args.manuals)
@@ -145,20 +162,18 @@ def main(argv: list[str] | None = None) -> int:
         else:
             # spawn, not fork: the parent has already started the extension's thread pool
             ctx = multiprocessing.get_context("spawn")
-            with ctx.Pool(args.workers, initializer=_worker_init) as pool:
+            with workers_ignore_interrupts():
+                pool = ctx.Pool(args.workers, initializer=_worker_init)
+            with pool:
                 for _, n in pool.imap_unordered(_job, jobs):
                     steps += n
                     bar.update(1)
     except KeyboardInterrupt:
         bar.close()
-        for stale in args.out.glob(".tmp-manual_*"):
-            shutil.rmtree(stale, ignore_errors=True)
         print("mepnet.synth: interrupted; run the same command again to finish", file=sys.stderr)
-        return 130
-    except BrickGeomError as e:
+        return INTERRUPTED
+    finally:
         bar.close()
-        return _fail(str(e))
-    bar.close()
     dt = time.perf_counter() - t0
     rate = steps / dt if dt > 0 else 0.0
     print(

@@ -7,6 +7,8 @@ from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 from typing import Any
 
+from mepnet.errors import ConfigError
+
 
 @dataclass(frozen=True)
 class ModelConfig:
@@ -36,6 +38,55 @@ class ModelConfig:
     emb_dim: int = 1
     #: Output stride of the heads.
     stride: int = 4
+
+    def __post_init__(self) -> None:
+        """Every size checked, so a bad setting fails here with one line naming it, not later
+        inside the network."""
+
+        def bad(name: str, why: str) -> ConfigError:
+            return ConfigError(f"model setting {name}={getattr(self, name)!r}: {why}")
+
+        if not isinstance(self.name, str):
+            raise bad("name", "must be a string")
+        for name in (
+            "image_size",
+            "in_channels",
+            "state_channels",
+            "comp_channels",
+            "k_max",
+            "hg_channels",
+            "hg_stacks",
+            "hg_depth",
+            "emb_dim",
+            "stride",
+        ):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+                raise bad(name, "must be a positive integer")
+        for name in ("base_grid", "comp_grid"):
+            v = getattr(self, name)
+            if (
+                not isinstance(v, tuple)
+                or len(v) != 3
+                or any(isinstance(x, bool) or not isinstance(x, int) or x < 2 or x % 2 for x in v)
+            ):
+                raise bad(name, "must be three even integers >= 2 (x, y, z cells)")
+            if v[0] * v[1] * v[2] > 512**3:
+                raise bad(name, "is too large")
+        if self.in_channels != 4:
+            raise bad("in_channels", "must be 4 (RGB and the edge channel)")
+        if self.stride != 4:
+            raise bad("stride", "must be 4 (the stem halves the image twice)")
+        if self.hg_channels % 2 or self.hg_channels > 4096:
+            raise bad("hg_channels", "must be an even number up to 4096")
+        if self.hg_depth > 6 or self.hg_stacks > 8 or self.k_max > 32 or self.emb_dim > 64:
+            raise bad("hg_depth", "hg_depth <= 6, hg_stacks <= 8, k_max <= 32, emb_dim <= 64")
+        unit = self.stride * 2**self.hg_depth
+        if not 16 <= self.image_size <= 4096 or self.image_size % unit:
+            raise bad("image_size", f"must be within 16..4096 and a multiple of {unit}")
+        for name in ("state_channels", "comp_channels"):
+            if getattr(self, name) > 4096:
+                raise bad(name, "must be at most 4096")
 
     @property
     def out_size(self) -> int:
@@ -81,7 +132,17 @@ class ModelConfig:
         """``slim``, ``paper``, ``tiny``, or a JSON file."""
         if name in ("slim", "paper", "tiny"):
             return getattr(cls, name)()
-        return cls.from_dict(json.loads(Path(name).read_text()))
+        try:
+            d = json.loads(Path(name).read_text())
+        except OSError as e:
+            raise ConfigError(
+                f"{name}: not slim, paper, tiny or a readable JSON file ({e.strerror or e})"
+            ) from None
+        except (ValueError, UnicodeDecodeError) as e:
+            raise ConfigError(f"{name}: not valid JSON ({e})") from None
+        if not isinstance(d, dict):
+            raise ConfigError(f"{name}: a model configuration must be a JSON object")
+        return cls.from_dict(d)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-able form."""
@@ -90,9 +151,11 @@ class ModelConfig:
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> ModelConfig:
         """Inverse of :meth:`to_dict`; unknown keys are an error."""
+        if not isinstance(d, dict):
+            raise ConfigError(f"a model configuration must be an object, got {type(d).__name__}")
         known = {f.name for f in fields(cls)}
         unknown = set(d) - known
         if unknown:
-            raise ValueError(f"unknown model settings: {', '.join(sorted(unknown))}")
+            raise ConfigError(f"unknown model settings: {', '.join(sorted(unknown))}")
         kw = {k: tuple(v) if isinstance(v, list) else v for k, v in d.items()}
         return cls(**kw)

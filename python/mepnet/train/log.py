@@ -11,7 +11,7 @@ import os
 from pathlib import Path
 from typing import Any
 
-from mepnet.checkpoint import atomic_write_bytes, atomic_write_json
+from mepnet.files import atomic_write_bytes, atomic_write_json
 
 CSV_HEADER = ("step", "split", "name", "value")
 

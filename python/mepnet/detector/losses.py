@@ -6,8 +6,7 @@ from __future__ import annotations
 
 import torch
 import torch.nn.functional as F
-
-from mepnet.model.config import ModelConfig
+from mepnet.detector.config import ModelConfig
 
 WEIGHTS = {"keypoint": 1.0, "mask": 1.0, "rotation": 0.1}
 

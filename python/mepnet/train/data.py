@@ -27,9 +27,55 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset, DistributedSampler, IterableDataset, get_worker_info
 
-from mepnet.data import Build, Manual, StepDataset, load_manual, write_manual
-from mepnet.model.config import ModelConfig
-from mepnet.model.targets import StepSample, collate, make_sample
+from mepnet import _brickgeom as _bg
+from mepnet.cli import quiet_interrupts_in_workers
+from mepnet.detector.config import ModelConfig
+from mepnet.detector.targets import StepSample, collate, make_sample
+from mepnet.manual import (
+    ComponentRef,
+    Manual,
+    answers_of,
+    iter_manual_dirs,
+    load_manual,
+    write_manual,
+)
+
+#: A step of a manual: (build key: a submodule index or None for the main model, step index).
+StepKey = tuple[int | None, int]
+
+
+def manual_steps(manual: Manual, submodules: bool) -> list[StepKey]:
+    """The steps of the main build (and, with ``submodules``, of the submodules' builds)."""
+    keys: list[StepKey] = [(None, s) for s in range(len(manual.main.steps))]
+    if submodules:
+        keys += [(k, s) for k, b in enumerate(manual.submodules) for s in range(len(b.steps))]
+    return keys
+
+
+def training_sample(
+    manual: Manual,
+    key: StepKey,
+    cfg: ModelConfig,
+    augment: bool,
+    rng: np.random.Generator,
+    components: dict[ComponentRef, _bg.Component] | None = None,
+) -> StepSample:
+    """Inputs and targets of a step on its true base shape (``components``: the manual's true
+    components, when the caller keeps them)."""
+    build, k = key
+    answers = answers_of(manual)
+    comps = components if components is not None else answers.components(manual)
+    page = manual.main if build is None else manual.submodules[build]
+    truth = answers.build(build)
+    return make_sample(
+        page.steps[k],
+        cfg,
+        base=truth.assembly_before(k, comps),
+        components=comps,
+        truth=truth.truth(k),
+        augment=augment,
+        rng=rng,
+    )
 
 
 def worker_init(_worker_id: int) -> None:
@@ -37,6 +83,7 @@ def worker_init(_worker_id: int) -> None:
     (several workers already use the cores; set before the pool starts in this process)."""
     os.environ.setdefault("RAYON_NUM_THREADS", "1")
     torch.set_num_threads(1)
+    quiet_interrupts_in_workers()
 
 
 class FolderSteps(Dataset):
@@ -52,21 +99,30 @@ class FolderSteps(Dataset):
         augment: bool,
         submodules: bool,
     ):
-        self.steps = StepDataset(list(roots), submodules=submodules)
+        self.manuals = [load_manual(p) for r in roots for p in iter_manual_dirs(r)]
+        for m in self.manuals:
+            answers_of(m)  # a clear error now for a manual without answers
+        self.index = [
+            (m, key) for m, man in enumerate(self.manuals) for key in manual_steps(man, submodules)
+        ]
+        self._components: dict[int, dict[ComponentRef, _bg.Component]] = {}
         self.model_config = model_config
         self.seed = seed
         self.augment = augment
 
     def __len__(self) -> int:
-        return len(self.steps)
+        return len(self.index)
 
     def __getitem__(self, key: tuple[int, int]) -> StepSample:
         index, epoch = key
-        m, b, s = self.steps.index[index]
-        manual = self.steps.manuals[m]
-        build = manual.main if b < 0 else manual.submodules[b].build
+        m, step = self.index[index]
+        manual = self.manuals[m]
+        if m not in self._components:
+            self._components[m] = answers_of(manual).components(manual)
         rng = np.random.default_rng([self.seed, epoch, index])
-        return make_sample(manual, build, s, self.model_config, self.augment, rng)
+        return training_sample(
+            manual, step, self.model_config, self.augment, rng, self._components[m]
+        )
 
 
 class ResumableSampler(DistributedSampler):
@@ -131,30 +187,28 @@ class GeneratedSteps(IterableDataset):
         positions = range(g * self.batch_size, (g + 1) * self.batch_size)
         samples: list[StepSample] = []
         with tempfile.TemporaryDirectory(prefix="mepnet-train-") as tmp:
-            loaded: dict[int, tuple[Manual, list[tuple[Build, int]], np.ndarray, int, int]] = {}
+            loaded: dict[int, tuple[Manual, list[StepKey], np.ndarray, int, int]] = {}
             for j in positions:
                 q, slot = divmod(j, k)
                 if q not in loaded:
                     loaded[q] = self._manual(q, Path(tmp))
                 manual, steps, order, seed, lap = loaded[q]
-                build, s = steps[order[slot % len(steps)]]
+                step = steps[order[slot % len(steps)]]
                 rng = np.random.default_rng([self.seed, seed, lap, slot])
-                samples.append(make_sample(manual, build, s, self.model_config, self.augment, rng))
+                samples.append(training_sample(manual, step, self.model_config, self.augment, rng))
         return collate(samples)
 
-    def _manual(
-        self, q: int, tmp: Path
-    ) -> tuple[Manual, list[tuple[Build, int]], np.ndarray, int, int]:
-        from mepnet import _brickgeom as _bg
-
+    def _manual(self, q: int, tmp: Path) -> tuple[Manual, list[StepKey], np.ndarray, int, int]:
         seed, lap = self.manual_seed(q)
         generated = _bg.synth_manual(seed, self.generator)
         folder = write_manual(
-            tmp / f"manual_{seed:08d}", generated, {"kind": "synthetic", "seed": seed}
+            tmp / f"manual_{seed:08d}",
+            generated,
+            {"kind": "synthetic", "seed": seed},
+            writer="mepnet.train",
         )
         manual = load_manual(folder)
-        builds = [manual.main] + ([s.build for s in manual.submodules] if self.submodules else [])
-        steps = [(b, s) for b in builds for s in range(len(b.steps))]
+        steps = manual_steps(manual, self.submodules)
         order = np.random.default_rng([self.seed, seed, lap]).permutation(len(steps))
         # the images are read by make_sample before the temporary folder goes
         return manual, steps, order, seed, lap

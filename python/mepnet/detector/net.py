@@ -19,10 +19,9 @@ from __future__ import annotations
 
 import torch
 import torch.nn.functional as F
-from torch import nn
-
-from mepnet.model.config import ModelConfig
+from mepnet.detector.config import ModelConfig
 from mepnet.state import STATE_MAPS
+from torch import nn
 
 
 def conv_bn(cin: int, cout: int, stride: int = 1, dims: int = 2) -> nn.Sequential:

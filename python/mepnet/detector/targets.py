@@ -17,11 +17,10 @@ from typing import Any
 import numpy as np
 import torch
 import torch.nn.functional as F
-
 from mepnet import _brickgeom as _bg
-from mepnet.data import Build, ComponentRef, Manual
-from mepnet.model.config import ModelConfig
-from mepnet.state import change_map, make_camera, state_projection
+from mepnet.detector.config import ModelConfig
+from mepnet.manual import ComponentRef, Step, StepTruth, make_camera
+from mepnet.state import change_map, state_projection
 
 #: Largest number of instances a step can add (the generator's limit).
 MAX_INSTANCES = 10
@@ -76,38 +75,35 @@ def _gaussian(heat: np.ndarray, cx: float, cy: float, sigma: float) -> None:
     np.maximum(heat, np.exp(-((xs - cx) ** 2 + (ys - cy) ** 2) / (2 * sigma**2)), out=heat)
 
 
-def step_slots(step: Any) -> list[ComponentRef]:
-    """Component types of a step in manual order (slot order)."""
-    return [c.component for c in step.components]
-
-
 def make_sample(
-    manual: Manual,
-    build: Build,
-    step_index: int,
+    step: Step,
     cfg: ModelConfig,
+    *,
+    base: _bg.Assembly,
+    components: dict[ComponentRef, _bg.Component],
+    truth: StepTruth | None = None,
     augment: bool = False,
     rng: np.random.Generator | None = None,
-    components: dict[ComponentRef, _bg.Component] | None = None,
-    base: _bg.Assembly | None = None,
     slot_types: Sequence[int] | None = None,
 ) -> StepSample:
-    """Inputs and targets of step ``step_index`` of ``build``. ``components`` and ``base``
-    default to the ground truth (the predictor passes its own). ``slot_types``: which of the
-    step's component types fill the K_max slots (default: the first K_max); a step with more
-    types takes several samples."""
+    """Network inputs of a page ``step`` (its image, camera and callout) on the shape ``base``,
+    and, with ``truth`` (the step's answers: training), the targets. Without ``truth`` (a
+    predictor: it never sees the answers) the targets are zeros and there is no augmentation.
+    ``slot_types``: which of the step's callout entries fill the K_max slots (default: the first
+    K_max); a step with more entries takes several samples."""
     rng = rng or np.random.default_rng(0)
-    step = build.steps[step_index]
     types = list(slot_types) if slot_types is not None else list(range(len(step.components)))
-    if len(types) > cfg.k_max:
-        types = types[: cfg.k_max]
-    slots = [step.components[i].component for i in types]
-    comps = components or {}
+    types = types[: cfg.k_max]
     rgb = step.image()
-    ids = step.ids()
-    cam = dict(step.camera)
-    kps = {v.id: np.array(v.keypoints[0], dtype=np.float64) for v in step.views}
-    if augment:
+    step.camera_object()  # a clear error when the page states no camera
+    cam = dict(step.camera)  # type: ignore[arg-type]
+    ids = truth.ids() if truth is not None else None
+    kps = (
+        {v.id: np.array(v.keypoint, dtype=np.float64) for v in truth.answers.views}
+        if truth is not None
+        else {}
+    )
+    if augment and ids is not None:
         rgb, ids, cam, kps = _augment(rgb, ids, cam, kps, rng)
     # keypoints at the network's resolution
     kps = {k: v * (cfg.image_size / rgb.shape[1]) for k, v in kps.items()}
@@ -122,10 +118,6 @@ def make_sample(
     image = np.concatenate([img, edge[None]], axis=0).astype(np.float32)
     n = cfg.out_size
     stride = cfg.image_size / n
-    ids_small = ids[
-        (np.arange(n) * ids.shape[0] // n)[:, None], (np.arange(n) * ids.shape[1] // n)[None, :]
-    ]
-    base = base if base is not None else manual.assembly_before(step_index, build)
     heat = np.zeros((cfg.k_max, n, n), np.float32)
     seg = np.zeros((cfg.k_max, n, n), np.float32)
     inst_map = np.zeros((n, n), np.int64)  # 0 background, i + 1 instance i
@@ -136,13 +128,21 @@ def make_sample(
     inst_valid = np.zeros(MAX_INSTANCES, np.float32)
     comp_vox = np.zeros((cfg.k_max, 1, *cfg.comp_grid[::-1]), np.float32)
     comp_valid = np.zeros(cfg.k_max, np.float32)
+    ids_small = (
+        ids[
+            (np.arange(n) * ids.shape[0] // n)[:, None], (np.arange(n) * ids.shape[1] // n)[None, :]
+        ]
+        if ids is not None
+        else None
+    )
     k_inst = 0
-    for s, ref in enumerate(slots):
-        comp = comps.get(ref) or manual.component(ref)
+    for s, entry in enumerate(types):
+        comp = components[step.components[entry].component]
         comp_vox[s, 0] = component_voxels(comp, cfg.comp_grid)
         comp_valid[s] = 1.0
-        sc = step.components[types[s]]
-        for iid in sc.instances:
+        if truth is None or ids_small is None:
+            continue
+        for iid in truth.instances_of[entry]:
             if k_inst >= MAX_INSTANCES:
                 break
             kp = kps[iid] / stride  # in head cells
@@ -156,7 +156,7 @@ def make_sample(
             inst_slot[k_inst] = s
             inst_cell[k_inst] = cell
             inst_off[k_inst] = (cx - cell[0], cy - cell[1])
-            inst_rot[k_inst] = _bg.rotation_class(comp.symmetry, build.instances[iid].yaw)
+            inst_rot[k_inst] = _bg.rotation_class(comp.symmetry, truth.instances[iid].yaw)
             inst_valid[k_inst] = 1.0
             k_inst += 1
     state_index, state_maps = state_projection(base, cam, cfg.image_size, cfg.base_grid)

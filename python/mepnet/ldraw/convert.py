@@ -17,9 +17,9 @@ from typing import Any
 import numpy as np
 
 from mepnet import _brickgeom as _bg
-from mepnet.data import write_manual
 from mepnet.geom import LDU_PER_CELL, BrickGeomError, manual_camera, rotate_lattice, rotate_ldu
-from mepnet.ldraw import LDrawFile
+from mepnet.ldraw.io import LDrawFile, build_order
+from mepnet.manual import write_manual
 
 #: Library parts eligible as substitutes: rectangular bricks, plates and tiles.
 RECTANGULAR = ("simple", "tile")
@@ -121,7 +121,6 @@ def convert(
     supersample: int = 1,
 ) -> dict[str, Any]:
     """Convert a model to a manual folder at ``out``; returns a report (counts, substitutions)."""
-    from mepnet.infer import build_order
 
     checks = _bg.check_ldraw(file.to_dict())
     # A main model that only places submodels, the biggest of them tilted or off the lattice
@@ -129,15 +128,15 @@ def convert(
     # model, and the rest (minifigures, stands) is left out.
     sizes: dict[int, int] = {}
 
+    for m in build_order(checks):  # submodels before the models that use them
+        sizes[m] = sum(
+            sizes.get(it["submodel"], 0) if it["kind"] == "submodel" else 1
+            for st in checks[m]["items"]
+            for it in st
+        )
+
     def size_of(m: int) -> int:
-        if m not in sizes:
-            sizes[m] = 0  # cycles are rejected by the reader; this only guards recursion
-            sizes[m] = sum(
-                size_of(it["submodel"]) if it["kind"] == "submodel" else 1
-                for st in checks[m]["items"]
-                for it in st
-            )
-        return sizes[m]
+        return sizes.get(m, 0)
 
     root = 0
     while True:
@@ -308,5 +307,5 @@ def convert(
         "substitutions": substitutions,
         "dropped": dropped,
     }
-    write_manual(out, manual, source)
+    write_manual(out, manual, source, writer="mepnet.ldraw to-manual")
     return report

@@ -28,14 +28,10 @@ from typing import Any
 import numpy as np
 
 from mepnet import _brickgeom as _bg
-from mepnet.data import ComponentRef, step_colour
+from mepnet.errors import ManualFormatError
 from mepnet.geom import LDU_PER_CELL, rotate_ldu
-from mepnet.predictors import Prediction, Predictor, StepContext
-from mepnet.state import change_map, fit_tone, state_render
-
-#: How the detector's detections are lifted to 3D: ``synthesis`` (this module, from the
-#: component masks) or ``keypoint`` (the paper's keypoint ray search, masks breaking ties).
-LIFTS = ("synthesis", "keypoint")
+from mepnet.stage2.base import Prediction, Predictor, StepContext
+from mepnet.state import CHANGE_THRESHOLD, change_map, fit_tone, state_render
 
 #: Weight of the detector's type belief (mean over a candidate's visible pixels).
 TYPE_WEIGHT = 0.3
@@ -45,8 +41,6 @@ COLOUR_WEIGHT = 1.0
 KEYPOINT_WEIGHT = 0.3
 #: Placements per type (best mask IoU first) weighed by colour and type belief.
 RANKED = 6
-#: A pixel of the change map above this is part of something new.
-CHANGE_THRESHOLD = 0.15
 #: Line tolerance (:func:`tolerate_lines`): the band either side of the base's part edges, in
 #: pixels; how far a change outside the band reaches into it; and the share of the band that
 #: must show isolated changes (lines drawn unlike ours) before the band is discounted.
@@ -55,9 +49,9 @@ LINE_BAND, LINE_REACH, LINE_MISMATCH = 1, 2, 0.05
 
 @dataclass
 class SynthesisType:
-    """What stage 2 knows about one component type of a step."""
+    """What stage 2 knows about one component type (callout entry) of a step."""
 
-    ref: ComponentRef
+    entry: int
     component: _bg.Component
     count: int
     #: (H, W) bool: pixels that may show this type.
@@ -118,8 +112,9 @@ def step_change(ctx: StepContext, picture: np.ndarray) -> tuple[np.ndarray, np.n
     it compared by (:func:`mepnet.state.fit_tone`, for :func:`synthesize`'s colours)."""
     w, h = ctx.image_size
     if w != h:
-        raise ValueError(f"{ctx.step.image_path}: synthesis needs square images, got {w}x{h}")
-    state, outline = state_render(ctx.base, ctx.step.camera, w)
+        raise ManualFormatError(f"{ctx.step.where}: synthesis needs square images, got {w}x{h}")
+    ctx.step.camera_object()  # a clear error when the page states no camera
+    state, outline = state_render(ctx.base, ctx.step.camera, w)  # type: ignore[arg-type]
     image = picture.transpose(2, 0, 1)
     tone = fit_tone(image, state)
     return tolerate_lines(change_map(image, state, tone), outline), tone
@@ -141,7 +136,7 @@ def synthesize(
     cam = ctx.camera
     left = [t.count for t in types]
     unexplained = np.ones((h, w), dtype=bool)
-    colours = [step_colour(ctx.truth, ctx.step, t.ref) for t in types]
+    colours = [ctx.colour(t.entry) for t in types]
     if not COLOUR_WEIGHT:
         picture = None
     elif picture is None:
@@ -178,16 +173,20 @@ def synthesize(
                     best = (score, i, (yaw, tr), {"iou": iou, "timed_out": timed_out})
         if best is None:
             for i, t in enumerate(types):
+                ref = ctx.step.components[t.entry].component
                 preds += [
-                    Prediction(t.ref, None, None, failure="no placement fits its mask")
-                ] * left[i]
+                    Prediction(t.entry, ref, None, None, failure="no placement fits its mask")
+                    for _ in range(left[i])
+                ]
                 left[i] = 0
             break
         _, i, (yaw, tr), extra = best
         new_id, attach = asm.add_checked(types[i].component, yaw, tr)
         unexplained &= _bg.render(asm, cam, w, h, line_px=0.0)["ids"] != new_id
         left[i] -= 1
-        preds.append(Prediction(types[i].ref, yaw, tr, attach=attach, extra=extra))
+        entry = types[i].entry
+        ref = ctx.step.components[entry].component
+        preds.append(Prediction(entry, ref, yaw, tr, attach=attach, extra=extra))
     return preds
 
 
@@ -205,7 +204,7 @@ class SynthesisPredictor(Predictor):
         change, tone = step_change(ctx, picture)
         support = change > CHANGE_THRESHOLD
         types = [
-            SynthesisType(sc.component, ctx.components[sc.component], sc.count, support)
-            for sc in ctx.step.components
+            SynthesisType(k, ctx.components[sc.component], sc.count, support)
+            for k, sc in enumerate(ctx.step.components)
         ]
         return synthesize(ctx, types, self.time_limit_s, picture, tone)

@@ -1,0 +1,64 @@
+"""The one command-line runner: every ``python -m mepnet.*`` command runs its work through
+:func:`run`, so bad input ends the same way everywhere -- one line naming the input and the
+problem on stderr, exit 2, no traceback -- and Ctrl-C ends with one line and exit 130."""
+
+from __future__ import annotations
+
+import contextlib
+import signal
+import sys
+from collections.abc import Callable, Iterator
+
+from mepnet.errors import MepnetError
+from mepnet.geom import BrickGeomError
+
+#: Exit status of a command stopped by bad input.
+BAD_INPUT = 2
+#: Exit status of a command stopped by Ctrl-C (128 + SIGINT).
+INTERRUPTED = 130
+
+
+def fail(prog: str, message: str) -> int:
+    """Print ``prog: error: message`` on stderr; returns :data:`BAD_INPUT`."""
+    print(f"{prog}: error: {message}", file=sys.stderr)
+    return BAD_INPUT
+
+
+def os_error_message(e: OSError) -> str:
+    """One line for an OS error: the file it concerns and what went wrong."""
+    name = e.filename if e.filename is not None else ""
+    text = e.strerror or str(e)
+    return f"{name}: {text}" if name else text
+
+
+def run(prog: str, work: Callable[[], int]) -> int:
+    """Run ``work`` (a command's body) and map its bad-input errors to exit statuses."""
+    try:
+        return int(work())
+    except KeyboardInterrupt:
+        print(f"{prog}: interrupted", file=sys.stderr)
+        return INTERRUPTED
+    except (MepnetError, BrickGeomError) as e:
+        return fail(prog, str(e))
+    except RecursionError:
+        return fail(prog, "input nested too deeply")
+    except OSError as e:
+        return fail(prog, os_error_message(e))
+
+
+@contextlib.contextmanager
+def workers_ignore_interrupts() -> Iterator[None]:
+    """Start worker processes inside this block: they begin with Ctrl-C ignored (a spawned
+    interpreter keeps an ignored SIGINT), so only the main process reacts to it, with one line,
+    instead of every worker printing a traceback while it is still starting up."""
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def quiet_interrupts_in_workers() -> None:
+    """For worker processes (data loaders, pools): ignore Ctrl-C, which the main process
+    handles, so a terminal does not fill with one traceback per worker."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)

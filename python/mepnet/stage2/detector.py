@@ -1,0 +1,120 @@
+"""The ``mepnet`` predictor: the detector (stage 1) followed by stage 2. As CenterNet's
+detector class, this wraps model + pure decoding + post-processing and lives with the stage
+that uses it, so the detector package never imports stage 2.
+
+Lifts: ``synthesis`` (default: :mod:`mepnet.stage2.synthesis` from the detector's type masks and
+beliefs) or ``keypoint`` (the paper's keypoint ray search, :mod:`mepnet.stage2.keypoint`).
+"""
+
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+import torch
+
+from mepnet.detector.config import ModelConfig
+from mepnet.detector.decode import decode
+from mepnet.detector.net import MEPNet
+from mepnet.detector.targets import collate, make_sample
+from mepnet.errors import ConfigError
+from mepnet.stage2.base import LIFTS, Prediction, Predictor, StepContext
+from mepnet.stage2.keypoint import DetectedType, lift_keypoints
+from mepnet.stage2.synthesis import SynthesisType, step_change, step_picture, synthesize
+
+#: How the detector's detections are lifted to 3D.
+
+
+class MEPNetPredictor(Predictor):
+    """The detector followed by stage 2 (the ``mepnet`` predictor)."""
+
+    name = "mepnet"
+
+    def __init__(
+        self,
+        model: MEPNet,
+        cfg: ModelConfig,
+        use_change: bool = True,
+        lift: str = "synthesis",
+        time_limit_s: float = 10.0,
+    ):
+        if lift not in LIFTS:
+            raise ConfigError(f"unknown lift '{lift}' (choose from {', '.join(LIFTS)})")
+        self.model = model
+        self.cfg = cfg
+        self.use_change = use_change
+        self.lift = lift
+        self.time_limit_s = time_limit_s
+        self._sizes_noted: set[tuple[int, int]] = set()
+
+    def _note_size(self, ctx: StepContext) -> None:
+        """Say once per image size that the manual's images are resized for the detector."""
+        w, h = ctx.image_size
+        if (w, h) != (self.cfg.image_size, self.cfg.image_size) and (w, h) not in self._sizes_noted:
+            self._sizes_noted.add((w, h))
+            print(
+                f"mepnet: {w}x{h} step images are resized to the detector's "
+                f"{self.cfg.image_size}x{self.cfg.image_size} (keypoints are mapped back)",
+                file=sys.stderr,
+            )
+
+    def detect(
+        self, ctx: StepContext, change: np.ndarray | None
+    ) -> tuple[list[DetectedType], np.ndarray | None]:
+        """The detector's detections per callout entry (K_max entries per forward pass; a step
+        with more takes several), and the change map used (the network input's when none was
+        given)."""
+        w, h = ctx.image_size
+        types: list[DetectedType] = []
+        n_types = len(ctx.step.components)
+        for first in range(0, n_types, self.cfg.k_max):
+            chunk = list(range(first, min(first + self.cfg.k_max, n_types)))
+            sample = make_sample(
+                ctx.step, self.cfg, base=ctx.base, components=ctx.components, slot_types=chunk
+            )
+            out = self.model(collate([sample]))
+            if change is None and self.use_change:
+                change = sample.tensors["state_maps"][9].numpy()
+            counts = [ctx.step.components[i].count for i in chunk]
+            dets = decode(out, counts, self.cfg, (w, h), change)
+            types += [
+                DetectedType(e, ctx.components[ctx.step.components[e].component], c, d)
+                for e, c, d in zip(chunk, counts, dets, strict=True)
+            ]
+        return types, change
+
+    @torch.no_grad()
+    def predict(self, ctx: StepContext) -> list[Prediction]:
+        was_training = self.model.training
+        self.model.eval()
+        try:
+            self._note_size(ctx)
+            w, h = ctx.image_size
+            picture = step_picture(ctx)
+            # where the picture differs from the base shape (lines tolerated), at the image's
+            # size; a non-square image: the change map of the network's (resized) input
+            change, tone = step_change(ctx, picture) if self.use_change and w == h else (None, None)
+            types, change = self.detect(ctx, change)
+            if self.lift == "keypoint":
+                return lift_keypoints(ctx, types)
+            return synthesize(
+                ctx,
+                [
+                    SynthesisType(
+                        entry=t.entry,
+                        component=t.component,
+                        count=t.count,
+                        mask=t.detections.type_mask
+                        if t.detections.type_mask is not None
+                        else np.zeros((h, w), bool),
+                        belief=t.detections.type_prob,
+                        heat=t.detections.type_heat,
+                    )
+                    for t in types
+                ],
+                time_limit_s=self.time_limit_s,
+                picture=picture,
+                tone=tone,
+            )
+        finally:
+            self.model.train(was_training)

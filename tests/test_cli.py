@@ -1,0 +1,224 @@
+"""Every command ends bad input the same way: one line naming the input and the problem, exit
+2, no traceback; Ctrl-C: one line, exit 130; it never deletes or overwrites what it did not
+write. One test per defect found by hostile use (issue 11)."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from mepnet.files import MANIFEST
+from test_files import dead_pid
+
+
+def bundled() -> Path:
+    from mepnet.infer import bundled_manual
+
+    return bundled_manual()
+
+
+def example_mpd() -> Path:
+    from mepnet.infer import bundled_example
+
+    return bundled_example()
+
+
+def cmd(module: str, *args: str, timeout: float = 600) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", module, *map(str, args)],
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
+
+
+def one_line_error(r: subprocess.CompletedProcess[str], *fragments: str) -> None:
+    assert r.returncode == 2, (r.stdout, r.stderr)
+    lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1, r.stderr
+    assert "Traceback" not in r.stderr
+    for f in fragments:
+        assert f in lines[0], lines[0]
+
+
+def test_infer_never_deletes_what_it_did_not_write(tmp_path: Path):
+    out = tmp_path / "d"
+    out.mkdir()
+    (out / "thesis.txt").write_text("x")
+    r = cmd("mepnet.infer", bundled(), "--out", out, "--predictor", "oracle", "--no-progress")
+    one_line_error(r, str(out), "not written by mepnet")
+    assert (out / "thesis.txt").read_text() == "x"
+    # --out is the input manual: refused, the manual intact
+    manual = tmp_path / "manual"
+    import shutil
+
+    shutil.copytree(bundled(), manual)
+    before = sorted(p.name for p in manual.iterdir())
+    r = cmd("mepnet.infer", manual, "--out", manual, "--predictor", "oracle", "--no-progress")
+    one_line_error(r, str(manual))
+    assert sorted(p.name for p in manual.iterdir()) == before
+    # its own earlier output is replaced; leftovers of a killed run (SIGKILL) are removed
+    plan = tmp_path / "plan"
+    stale = tmp_path / f".tmp-plan-{dead_pid()}-abcdef"
+    stale.mkdir()
+    for _ in range(2):
+        r = cmd("mepnet.infer", bundled(), "--out", plan, "--predictor", "oracle", "--no-progress")
+        assert r.returncode == 0, r.stderr
+    assert (plan / "plan.json").is_file() and (plan / MANIFEST).is_file()
+    assert not stale.exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["d", "manual", "plan"]
+
+
+def test_infer_ldraw_checks_size_first_and_writes_atomically(tmp_path: Path):
+    r = cmd("mepnet.infer", example_mpd(), "--out", tmp_path / "o", "--size", "0")
+    one_line_error(r, "--size")
+    assert "mepnet: model" not in r.stdout  # rejected before the report
+    assert not (tmp_path / "o").exists()
+    r = cmd("mepnet.infer", example_mpd(), "--out", tmp_path / "o", "--size", "32")
+    assert r.returncode == 0, r.stderr
+    assert (tmp_path / "o" / MANIFEST).is_file()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["o"]
+
+
+def test_json_outputs_are_checked_before_the_work(tmp_path: Path):
+    r = cmd("mepnet.eval", "--data", bundled(), "--predictor", "oracle", "--json", tmp_path / "no" / "m.json")
+    one_line_error(r, "does not exist")
+    assert "Pose Acc" not in r.stdout  # refused before evaluating
+    r = cmd("mepnet.eval", "--data", bundled(), "--predictor", "oracle", "--json", tmp_path)
+    one_line_error(r, "is a folder")
+    r = cmd("mepnet.ldraw", "info", example_mpd(), "--json", tmp_path)
+    one_line_error(r, "is a folder")
+    assert list(tmp_path.iterdir()) == []  # no stray temporary files
+
+
+@pytest.mark.parametrize("sigma", ["-5", "nan", "inf"])
+def test_bad_sigma(sigma: str):
+    r = cmd("mepnet.eval", "--data", bundled(), "--predictor", "oracle-noisy", "--sigma", sigma)
+    one_line_error(r, "--sigma")
+
+
+def test_abys_is_the_baselines_name_and_the_oracle_is_named_so():
+    r = cmd("mepnet.eval", "--data", bundled(), "--predictor", "abys")
+    one_line_error(r, "oracle-abys")
+
+
+def test_model_settings_are_checked(tmp_path: Path):
+    r = cmd("mepnet.train", "--out", tmp_path / "run", "--steps", "1", "--model", "tiny", "--model-set", "hg_channels=-4")
+    one_line_error(r, "hg_channels")
+    # a weights file whose header holds an impossible config: refused when loaded
+    import torch
+
+    from mepnet.detector.config import ModelConfig
+    from mepnet.detector.net import build_model
+    from mepnet.detector.weights import save_model
+
+    cfg = ModelConfig.tiny()
+    d = cfg.to_dict()
+    d["base_grid"] = "big"
+    save_model(tmp_path, build_model(cfg).state_dict(), d)
+    assert torch  # (torch is what the weights are made of)
+    r = cmd("mepnet.eval", "--data", bundled(), "--predictor", "mepnet", "--weights", tmp_path / "model.safetensors")
+    one_line_error(r, "model.safetensors", "base_grid")
+
+
+def test_synth_ranges_and_concurrent_runs(tmp_path: Path):
+    config = tmp_path / "gen.json"
+    config.write_text(json.dumps({"footprint": [4, 6], "components": [3, 5]}))
+    out = tmp_path / "out"
+    out.mkdir()
+    # another run still writing into the same folder (this process is alive) keeps its
+    # temporary folder; a killed run's is removed
+    live = out / f".tmp-manual_00000009-{os.getpid()}-abc"
+    live.mkdir()
+    dead = out / f".tmp-manual_00000008-{dead_pid()}-abc"
+    dead.mkdir()
+    r = cmd("mepnet.synth", "--out", out, "--manuals", "1", "--seed", "3", "--size", "32", "--config", config, "--no-progress")
+    assert r.returncode == 0, r.stderr
+    assert live.exists() and not dead.exists()
+    doc = json.loads((out / "manual_00000003" / "manual.json").read_text())
+    assert doc["source"]["generator"]["footprint"] == [4, 6]
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps({"footprint": [6, 4, 1]}))
+    r = cmd("mepnet.synth", "--out", out, "--manuals", "1", "--config", bad)
+    one_line_error(r, "generator settings")
+
+
+def nested_mpd(path: Path, depth: int) -> Path:
+    lines = []
+    for k in range(depth):
+        lines += [f"0 FILE m{k}.ldr", f"1 16 0 0 0 1 0 0 0 1 0 0 0 1 m{k + 1}.ldr", ""]
+    lines += [f"0 FILE m{depth}.ldr", "1 4 0 0 0 1 0 0 0 1 0 0 0 1 3001.dat", ""]
+    path.write_text("\n".join(lines))
+    return path
+
+
+@pytest.mark.parametrize("depth", [2_000, 20_000])
+def test_deep_nesting_is_a_clear_error(tmp_path: Path, depth: int):
+    f = nested_mpd(tmp_path / "deep.mpd", depth)
+    for args in (("mepnet.ldraw", "info", f), ("mepnet.infer", f), ("mepnet.ldraw", "to-manual", f, "--out", tmp_path / "m")):
+        r = cmd(*args)
+        one_line_error(r, "deep.mpd", "nested")
+    assert not (tmp_path / "m").exists()
+
+
+def test_shallow_nesting_still_works(tmp_path: Path):
+    f = nested_mpd(tmp_path / "ok.mpd", 20)
+    r = cmd("mepnet.ldraw", "info", f)
+    assert r.returncode == 0, r.stderr
+    r = cmd("mepnet.ldraw", "to-manual", f, "--out", tmp_path / "m", "--size", "32")
+    assert r.returncode == 0, r.stderr
+
+
+def interrupt(args: list[str], ready: str, timeout: float = 300) -> subprocess.CompletedProcess[str]:
+    """Start a command, wait until its stderr shows ``ready``, press Ctrl-C."""
+    p = subprocess.Popen([sys.executable, "-m", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    assert p.stderr is not None
+    fd = p.stderr.fileno()
+    os.set_blocking(fd, False)
+    seen = b""
+    t0 = time.monotonic()
+    try:
+        while ready.encode() not in seen:
+            assert p.poll() is None, seen.decode()
+            assert time.monotonic() - t0 < timeout, seen.decode()
+            try:
+                seen += os.read(fd, 65536)
+            except BlockingIOError:
+                time.sleep(0.05)
+        time.sleep(0.5)
+        p.send_signal(signal.SIGINT)
+        os.set_blocking(fd, True)
+        out, err = p.communicate(timeout=120)
+    finally:
+        if p.poll() is None:
+            p.kill()
+            p.communicate()
+    return subprocess.CompletedProcess(p.args, p.returncode, out.decode(), (seen + err).decode())
+
+
+def test_ctrl_c_in_infer_is_one_line(tmp_path: Path):
+    r = interrupt(["mepnet.infer", str(bundled()), "--out", str(tmp_path / "p"), "--predictor", "synthesis"], "step/s")
+    assert r.returncode == 130, r.stderr
+    assert "Traceback" not in r.stderr
+    assert r.stderr.rstrip().splitlines()[-1] == "mepnet.infer: interrupted"
+    assert list(tmp_path.iterdir()) == []  # nothing half-written
+
+
+def test_ctrl_c_in_train_is_one_line(tmp_path: Path):
+    r = interrupt(
+        [
+            "mepnet.train", "--out", str(tmp_path / "run"), "--model", "tiny", "--steps", "1000",
+            "--batch-size", "2", "--workers", "2", "--generate-size", "64", "--samples-per-manual", "2",
+        ],
+        "step/s",
+    )
+    assert r.returncode == 130, r.stderr
+    assert "Traceback" not in r.stderr
+    assert r.stderr.rstrip().splitlines()[-1] == "mepnet.train: interrupted"
