@@ -45,8 +45,18 @@ def edit(folder: Path, change: Any) -> None:
     (folder / "manual.json").write_text(json.dumps(doc))
 
 
-def test_version_1_and_2_read_the_same(v2: Path):
-    a, b = load_manual(bundled()), load_manual(v2)
+@pytest.fixture
+def v1(tmp_path: Path) -> Path:
+    """The bundled example as it was written in version 1 (answers inside the steps)."""
+    folder = tmp_path / "v1"
+    shutil.copytree(bundled(), folder)
+    shutil.copyfile(Path(__file__).parent / "data" / "example_manual_v1.json", folder / "manual.json")
+    return folder
+
+
+def test_version_1_and_2_read_the_same(v1: Path, v2: Path):
+    a, b = load_manual(v1), load_manual(v2)
+    assert json.loads((v1 / "manual.json").read_text())["version"] == 1
     assert json.loads((v2 / "manual.json").read_text())["version"] == 2
     assert manual_json(a) == manual_json(b)
     # the page: callouts with part, colour and count; the answers apart
