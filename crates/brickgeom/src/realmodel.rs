@@ -8,7 +8,7 @@ use crate::assembly::{Assembly, AttachKind};
 use crate::component::{Brick, Component, MAIN_COLOUR};
 use crate::error::{BrickGeomError, Result};
 use crate::lattice::Pose;
-use crate::ldraw::{lattice_pose, normalise_name, LdrawFile};
+use crate::ldraw::{lattice_pose, normalise_name, LdrawFile, LdrawRef};
 use crate::library::library;
 
 /// What a reference points at.
@@ -59,64 +59,99 @@ fn residual(position: [f64; 3]) -> Option<[i64; 3]> {
     })
 }
 
+/// Models in an order where each comes after the submodels it references: a depth-first
+/// post-order, iterative because the nesting of a hand-built file is unbounded and must not
+/// become recursion. `subs[m]` lists the submodels model `m` references. The parser rejects
+/// cycles; in a hand-built file with one, the reference that closes it points at a model that
+/// comes later, which callers treat as unresolved.
+fn submodels_first(subs: &[Vec<usize>]) -> Vec<usize> {
+    let mut order = Vec::with_capacity(subs.len());
+    let mut seen = vec![false; subs.len()];
+    for root in 0..subs.len() {
+        if std::mem::replace(&mut seen[root], true) {
+            continue;
+        }
+        // (model, next entry of subs[model] to visit)
+        let mut stack = vec![(root, 0usize)];
+        while let Some(&mut (m, ref mut next)) = stack.last_mut() {
+            if let Some(&s) = subs[m].get(*next) {
+                *next += 1;
+                if !std::mem::replace(&mut seen[s], true) {
+                    stack.push((s, 0));
+                }
+            } else {
+                order.push(m);
+                stack.pop();
+            }
+        }
+    }
+    order
+}
+
 /// Lattice offsets of every model: the residual with the most parts behind it. A submodel
 /// reference votes with its flattened part count at its own offset carried into the parent
 /// (P = M off_sub + pos), so a main model follows its biggest submodel rather than a few wheels.
+/// Submodels are solved first; a reference closing a cycle (hand-built files only) votes with
+/// nothing.
 fn model_offsets(file: &LdrawFile, index: &HashMap<String, usize>) -> Vec<[f64; 3]> {
-    fn solve(
-        m: usize,
-        file: &LdrawFile,
-        index: &HashMap<String, usize>,
-        memo: &mut Vec<Option<([f64; 3], u64)>>,
-        depth: usize,
-    ) -> ([f64; 3], u64) {
-        if let Some(v) = memo[m] {
-            return v;
+    let sub_of = |r: &LdrawRef| -> Option<usize> {
+        if r.is_submodel {
+            index.get(&normalise_name(&r.name)).copied()
+        } else {
+            None
         }
-        // the parser rejects cycles; the depth bound only keeps a hand-built file from recursing
-        if depth > file.models.len() {
-            return ([0.0; 3], 0);
-        }
-        let mut votes: HashMap<[i64; 3], u64> = HashMap::new();
-        let mut size = 0u64;
-        for r in file.models[m].steps.iter().flatten() {
-            let sub = if r.is_submodel {
-                index.get(&normalise_name(&r.name)).copied()
-            } else {
-                None
-            };
-            let (pos, weight) = match sub {
-                Some(s) => {
-                    let (off, n) = solve(s, file, index, memo, depth + 1);
-                    let mut p = r.position;
-                    for (a, v) in p.iter_mut().enumerate() {
-                        *v += (0..3).map(|b| r.matrix[a][b] * off[b]).sum::<f64>();
-                    }
-                    (p, n)
-                }
-                None => (r.position, 1),
-            };
-            size += weight;
-            // tilted references (display stands, sideways building) say nothing about the lattice
-            let m32 = r.matrix.map(|row| row.map(|v| v as f32));
-            if crate::lattice::yaw_from_matrix(&m32, 1e-3).is_none() {
-                continue;
-            }
-            if let Some(key) = residual(pos) {
-                *votes.entry(key).or_default() += weight;
-            }
-        }
-        let off = votes
-            .into_iter()
-            .max_by_key(|&(k, n)| (n, std::cmp::Reverse(k)))
-            .map_or([0.0; 3], |(k, _)| k.map(|v| v as f64 / 100.0));
-        memo[m] = Some((off, size));
-        (off, size)
+    };
+    let subs: Vec<Vec<usize>> = file
+        .models
+        .iter()
+        .map(|m| m.steps.iter().flatten().filter_map(sub_of).collect())
+        .collect();
+    let mut solved: Vec<Option<([f64; 3], u64)>> = vec![None; file.models.len()];
+    for m in submodels_first(&subs) {
+        solved[m] = Some(vote_offset(file, m, sub_of, &solved));
     }
-    let mut memo = vec![None; file.models.len()];
-    (0..file.models.len())
-        .map(|m| solve(m, file, index, &mut memo, 0).0)
+    solved
+        .into_iter()
+        .map(|s| s.map_or([0.0; 3], |(off, _)| off))
         .collect()
+}
+
+/// The offset of model `m` and its flattened part count, given its submodels' (`solved`).
+fn vote_offset(
+    file: &LdrawFile,
+    m: usize,
+    sub_of: impl Fn(&LdrawRef) -> Option<usize>,
+    solved: &[Option<([f64; 3], u64)>],
+) -> ([f64; 3], u64) {
+    let mut votes: HashMap<[i64; 3], u64> = HashMap::new();
+    let mut size = 0u64;
+    for r in file.models[m].steps.iter().flatten() {
+        let (pos, weight) = match sub_of(r) {
+            Some(s) => {
+                let (off, n) = solved[s].unwrap_or(([0.0; 3], 0));
+                let mut p = r.position;
+                for (a, v) in p.iter_mut().enumerate() {
+                    *v += (0..3).map(|b| r.matrix[a][b] * off[b]).sum::<f64>();
+                }
+                (p, n)
+            }
+            None => (r.position, 1),
+        };
+        size += weight;
+        // tilted references (display stands, sideways building) say nothing about the lattice
+        let m32 = r.matrix.map(|row| row.map(|v| v as f32));
+        if crate::lattice::yaw_from_matrix(&m32, 1e-3).is_none() {
+            continue;
+        }
+        if let Some(key) = residual(pos) {
+            *votes.entry(key).or_default() += weight;
+        }
+    }
+    let off = votes
+        .into_iter()
+        .max_by_key(|&(k, n)| (n, std::cmp::Reverse(k)))
+        .map_or([0.0; 3], |(k, _)| k.map(|v| v as f64 / 100.0));
+    (off, size)
 }
 
 /// Why an item cannot be placed as a component.
@@ -218,48 +253,51 @@ impl LatticeFile {
         let n = models.len();
         let mut placeable = vec![false; n];
         let mut bricks: Vec<Option<Vec<Brick>>> = vec![None; n];
-        // Resolve in dependency order: repeat until no model changes (depth <= n).
-        for _ in 0..=n {
-            let mut changed = false;
-            for m in 0..n {
-                if bricks[m].is_some() {
-                    continue;
-                }
-                let items = models[m].steps.iter().flatten();
-                if items.clone().any(|it| blocker(it, &placeable).is_some()) {
-                    continue;
-                }
-                let mut out = Vec::new();
-                for it in items {
-                    match it.kind {
-                        ItemKind::Part(id) => out.push(Brick {
-                            part: id,
-                            pose: it.pose,
-                            colour: it.colour,
-                        }),
-                        ItemKind::Submodel(s) => {
-                            for b in bricks[s].as_ref().expect("placeable submodel has bricks") {
-                                out.push(Brick {
-                                    part: b.part,
-                                    pose: it.pose.compose(&b.pose),
-                                    colour: if b.colour == MAIN_COLOUR {
-                                        it.colour
-                                    } else {
-                                        b.colour
-                                    },
-                                });
-                            }
+        let subs: Vec<Vec<usize>> = models
+            .iter()
+            .map(|m| {
+                m.steps
+                    .iter()
+                    .flatten()
+                    .filter_map(|it| match it.kind {
+                        ItemKind::Submodel(s) => Some(s),
+                        _ => None,
+                    })
+                    .collect()
+            })
+            .collect();
+        // Submodels first, so one pass resolves every model whose submodels are placeable.
+        for m in submodels_first(&subs) {
+            let items = models[m].steps.iter().flatten();
+            if items.clone().any(|it| blocker(it, &placeable).is_some()) {
+                continue;
+            }
+            let mut out = Vec::new();
+            for it in items {
+                match it.kind {
+                    ItemKind::Part(id) => out.push(Brick {
+                        part: id,
+                        pose: it.pose,
+                        colour: it.colour,
+                    }),
+                    ItemKind::Submodel(s) => {
+                        for b in bricks[s].as_ref().expect("placeable submodel has bricks") {
+                            out.push(Brick {
+                                part: b.part,
+                                pose: it.pose.compose(&b.pose),
+                                colour: if b.colour == MAIN_COLOUR {
+                                    it.colour
+                                } else {
+                                    b.colour
+                                },
+                            });
                         }
-                        ItemKind::Unknown => unreachable!("blocker() rejects unknown items"),
                     }
+                    ItemKind::Unknown => unreachable!("blocker() rejects unknown items"),
                 }
-                placeable[m] = true;
-                bricks[m] = Some(out);
-                changed = true;
             }
-            if !changed {
-                break;
-            }
+            placeable[m] = true;
+            bricks[m] = Some(out);
         }
         LatticeFile {
             models,

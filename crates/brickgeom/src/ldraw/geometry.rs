@@ -23,6 +23,7 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
+use super::model::MAX_NESTING;
 use super::text::{decode, det3, parse_err, points, split_fields, type1_numbers};
 use crate::error::{BrickGeomError, Result};
 use crate::mesh::Mesh;
@@ -41,8 +42,9 @@ pub const TOP_STUD_PRIMITIVES: &[&str] = &[
     "studp01.dat",
 ];
 
-/// Deepest subfile nesting accepted (real parts nest fewer than 10 levels).
-const MAX_DEPTH: usize = 64;
+/// Deepest subfile nesting accepted: [`MAX_NESTING`] files in a chain, the part itself
+/// included (real parts nest fewer than 10 levels). Bounds the recursion of `flatten`.
+const MAX_DEPTH: usize = MAX_NESTING;
 
 /// A part's real geometry from an LDraw library.
 #[derive(Debug, Clone)]

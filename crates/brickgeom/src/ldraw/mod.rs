@@ -22,7 +22,7 @@ pub use flatten::FlatPart;
 pub use geometry::{load_part_geometry, PartGeometry, PartLoader, TOP_STUD_PRIMITIVES};
 pub use model::{
     normalise_name, parse_ldraw, read_ldraw, EmbeddedPart, LdrawFile, LdrawModel, LdrawRef,
-    MAX_FLAT_PARTS,
+    MAX_FLAT_PARTS, MAX_NESTING,
 };
 pub use pose::{lattice_pose, ldraw_placement, LatticePose};
 pub use text::MAX_ABS_VALUE;

@@ -18,8 +18,12 @@
 //!   files are not chased); other names are parts.
 //! - The title of a model is its first line when that is a plain `0 text` comment.
 //!
+//! - Submodels may nest at most [`MAX_NESTING`] levels below any model (the main model's own
+//!   references are level 1).
+//!
 //! Bad input (binary, empty, malformed numbers, NaN, |value| > 1e6 LDU, singular matrices,
-//! cycles, a model expanding to more than [`MAX_FLAT_PARTS`] parts) is an error, never a panic.
+//! cycles, submodels nested deeper than [`MAX_NESTING`] levels, a model expanding to more than
+//! [`MAX_FLAT_PARTS`] parts) is an error, never a panic.
 
 use std::collections::HashMap;
 use std::path::Path;
@@ -29,6 +33,13 @@ use crate::error::{BrickGeomError, Result};
 
 /// Largest number of parts a model may expand to when all submodel references are flattened.
 pub const MAX_FLAT_PARTS: u64 = 10_000_000;
+
+/// Deepest nesting accepted: a chain of submodel references may go at most this many levels
+/// below the model it starts from (a model's own references are one level below it); for part
+/// geometry (`load_part_geometry`), a chain of subfiles may hold at most this many files, the
+/// part included. Real files nest fewer than 10 levels. Reading checks the bound, and the walks
+/// over the model tree are iterative besides, so no nesting in the data can overflow the stack.
+pub const MAX_NESTING: usize = 64;
 
 /// A parsed .ldr/.mpd file.
 #[derive(Debug, Clone, PartialEq, Default)]
@@ -153,6 +164,7 @@ pub fn parse_ldraw(bytes: &[u8], file_name: &str) -> Result<LdrawFile> {
             "main model has no part or submodel references",
         ));
     }
+    check_nesting(&file, file_name)?;
     check_expansion(&file, file_name)?;
     Ok(file)
 }
@@ -421,6 +433,69 @@ fn submodel_children(file: &LdrawFile, index: &HashMap<String, usize>) -> Vec<Ve
                 .collect()
         })
         .collect()
+}
+
+/// Reject files with a chain of submodel references more than [`MAX_NESTING`] levels deep
+/// (from any model, used or not). Cycles were rejected before, so the models form a DAG.
+fn check_nesting(file: &LdrawFile, file_name: &str) -> Result<()> {
+    let index = model_index(file);
+    let children = submodel_children(file, &index);
+    // height[m]: the longest chain of submodel references below model m, memoised by an
+    // iterative post-order walk (the data may nest deeper than the call stack allows).
+    let mut height: Vec<Option<usize>> = vec![None; file.models.len()];
+    for start in 0..file.models.len() {
+        let mut stack = vec![start];
+        while let Some(&node) = stack.last() {
+            if height[node].is_some() {
+                stack.pop();
+                continue;
+            }
+            let pending: Vec<usize> = children[node]
+                .iter()
+                .copied()
+                .filter(|&c| height[c].is_none())
+                .collect();
+            if pending.is_empty() {
+                let below = children[node].iter().map(|&c| height[c].unwrap_or(0) + 1);
+                height[node] = Some(below.max().unwrap_or(0));
+                stack.pop();
+            } else {
+                stack.extend(pending);
+            }
+        }
+    }
+    let height: Vec<usize> = height.into_iter().map(|h| h.unwrap_or(0)).collect();
+    let Some(top) = (0..file.models.len()).find(|&m| height[m] > MAX_NESTING) else {
+        return Ok(());
+    };
+    // Follow a deepest chain down to the first model past the limit, for the message.
+    let (mut model, mut line) = (top, 1);
+    for _ in 0..=MAX_NESTING {
+        let next = file.models[model]
+            .steps
+            .iter()
+            .flatten()
+            .filter(|r| r.is_submodel)
+            .find_map(|r| {
+                let c = *index.get(&r.name)?;
+                (height[c] + 1 == height[model]).then_some((c, r.line))
+            });
+        let Some((child, at)) = next else {
+            break;
+        };
+        (model, line) = (child, at);
+    }
+    Err(parse_err(
+        file_name,
+        line,
+        format!(
+            "submodels nested deeper than {MAX_NESTING} levels (model '{}' is {} levels below \
+             '{}')",
+            file.models[model].name,
+            MAX_NESTING + 1,
+            file.models[top].name
+        ),
+    ))
 }
 
 /// Reject files whose main model expands to more than [`MAX_FLAT_PARTS`] parts.
