@@ -200,3 +200,11 @@ def test_strip_command(tmp_path: Path):
     )
     assert r.returncode == 2 and r.stderr.count("\n") == 1 and "missing" in r.stderr
     assert not (tmp_path / "v").exists()
+
+
+def test_errors_after_loading_name_the_manual_and_step(v2: Path):
+    (v2 / "step_004.png").write_bytes(b"not a png at all")
+    m = load_manual(v2)  # the file exists: found when the step is read
+    with pytest.raises(ManualFormatError) as e:
+        run_manual(m, make_predictor("synthesis"))
+    assert "step_004.png" in str(e.value) and f"{v2} step 4" in str(e.value)

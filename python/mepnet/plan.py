@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from mepnet import _brickgeom as _bg
+from mepnet.errors import MepnetError
 from mepnet.files import atomic_folder
 from mepnet.geom import BrickGeomError, submodule_from_placed
 from mepnet.ldraw.io import LDrawFile, LDrawModel, LDrawRef, ldraw_placement
@@ -125,7 +126,12 @@ def run_build(
                 ),
                 truth.instances,
             )
-        preds, seconds = predict_step(predictor, ctx, truth)
+        try:
+            preds, seconds = predict_step(predictor, ctx, truth)
+        except (MepnetError, BrickGeomError) as e:
+            if step.where and step.where not in str(e):  # name the manual and the step
+                raise type(e)(f"{step.where}: {e}") from None
+            raise
         # back to the page's entry numbering, and a failure for every entry left out
         preds = [dataclasses.replace(p, entry=kept[p.entry]) for p in preds]
         for e, c in enumerate(step.components):

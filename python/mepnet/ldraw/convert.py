@@ -17,7 +17,13 @@ from typing import Any
 import numpy as np
 
 from mepnet import _brickgeom as _bg
-from mepnet.geom import LDU_PER_CELL, BrickGeomError, manual_camera, rotate_lattice, rotate_ldu
+from mepnet.geom import (
+    LDU_PER_CELL,
+    BrickGeomError,
+    manual_camera,
+    rotate_ldu,
+    submodule_from_placed,
+)
 from mepnet.ldraw.io import LDrawFile, build_order
 from mepnet.manual import write_manual
 
@@ -256,22 +262,11 @@ def convert(
             # parts of the final shape, submodules expanded (comparable with the file's count)
             kept_parts = sum(len(placed[i][0].bricks) for i in sorted(keep_set))
             break
-        bricks = [
-            (
-                part,
-                (yaw + byaw) % 4,
-                rotate_lattice(bt, yaw, t),
-                col if bcol == 16 else bcol,
-            )
-            for c, _, yaw, t, col in (placed[i] for i in sorted(keep_set))
-            for part, byaw, bt, bcol in c.bricks
-        ]
-        comp = _bg.Component.from_bricks(
+        comp = submodule_from_placed(
             model["name"],
-            [b[0] for b in bricks],
-            np.array([[b[1], *b[2]] for b in bricks], dtype=np.int64),
-            [b[3] for b in bricks],
+            [(c, yaw, t, col) for c, _, yaw, t, col in (placed[i] for i in sorted(keep_set))],
         )
+        bricks = comp.bricks
         converted[m] = (comp, shift, len(submodules))
         submodules.append(
             {
