@@ -93,7 +93,17 @@ pub fn to_py(err: E) -> PyErr {
     }
 }
 
-/// `Result<T, BrickGeomError>` -> `PyResult<T>`.
+/// Run `f`, a call into the core, with the GIL released, and map its error to the matching
+/// Python exception. The one way binding code runs fallible core work that can take longer than
+/// about a millisecond (as polars' `enter_polars`); infallible work uses `py.detach` directly.
+pub fn detach_core<T: Send>(
+    py: Python<'_>,
+    f: impl FnOnce() -> brickgeom::error::Result<T> + Send,
+) -> PyResult<T> {
+    py.detach(f).map_err(to_py)
+}
+
+/// `Result<T, BrickGeomError>` -> `PyResult<T>`, for quick core calls made holding the GIL.
 pub trait IntoPyResult<T> {
     fn py(self) -> PyResult<T>;
 }

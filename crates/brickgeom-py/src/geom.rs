@@ -10,7 +10,7 @@ use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
-use crate::errors::{IntoPyResult, InvalidArgumentError};
+use crate::errors::{detach_core, IntoPyResult, InvalidArgumentError};
 
 type Int3 = (i32, i32, i32);
 
@@ -482,7 +482,7 @@ impl PyAssembly {
         let g = ground_search(ground)?;
         let yaw = pose(yaw, (0, 0, 0))?.yaw;
         let comp = component.inner.clone();
-        let found = py.detach(|| self.inner.candidates(&comp, yaw, g)).py()?;
+        let found = detach_core(py, || self.inner.candidates(&comp, yaw, g))?;
         let ts: Vec<Lattice> = found.iter().map(|p| p.pose.t).collect();
         let kinds: Array1<u8> = found.iter().map(|p| p.kind as u8).collect();
         Ok((points_array(py, &ts), kinds.into_pyarray(py)))

@@ -14,7 +14,7 @@ use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
 
-use crate::errors::{IntoPyResult, InvalidArgumentError};
+use crate::errors::{detach_core, IntoPyResult, InvalidArgumentError};
 
 type Mat = [[f64; 3]; 3];
 
@@ -123,7 +123,7 @@ fn dict_to_file(d: &Bound<'_, PyDict>) -> PyResult<LdrawFile> {
 /// embedded_parts; each ref {line, colour, position, matrix, name, is_submodel} (LDraw frame).
 #[pyfunction]
 fn read_ldraw_dict<'py>(py: Python<'py>, path: PathBuf) -> PyResult<Bound<'py, PyDict>> {
-    let f = py.detach(|| read_ldraw(&path)).py()?;
+    let f = detach_core(py, || read_ldraw(&path))?;
     file_to_dict(py, &f)
 }
 
@@ -134,15 +134,15 @@ fn parse_ldraw_dict<'py>(
     data: &[u8],
     file_name: &str,
 ) -> PyResult<Bound<'py, PyDict>> {
-    let f = parse_ldraw(data, file_name).py()?;
+    let f = detach_core(py, || parse_ldraw(data, file_name))?;
     file_to_dict(py, &f)
 }
 
 /// Write a dict tree to `path` (atomically: temporary file, then rename).
 #[pyfunction]
-fn write_ldraw_dict(path: PathBuf, file: &Bound<'_, PyDict>) -> PyResult<()> {
+fn write_ldraw_dict(py: Python<'_>, path: PathBuf, file: &Bound<'_, PyDict>) -> PyResult<()> {
     let f = dict_to_file(file)?;
-    write_ldraw(&path, &f).py()
+    detach_core(py, || write_ldraw(&path, &f))
 }
 
 /// The text a dict tree is written as.
@@ -274,7 +274,7 @@ fn load_part_mesh<'py>(
     Bound<'py, numpy::PyArray2<u32>>,
     usize,
 )> {
-    let g = py.detach(|| load_part_geometry(&root, id)).py()?;
+    let g = detach_core(py, || load_part_geometry(&root, id))?;
     let v: Vec<f32> = g
         .mesh
         .vertices

@@ -1,7 +1,9 @@
 //! `mepnet._brickgeom`: thin PyO3 wrappers over the brickgeom core.
 //!
 //! Each function extracts its arguments, releases the GIL around work that can take longer than
-//! about a millisecond, calls the core and converts the result. No geometry lives here.
+//! about a millisecond, calls the core and converts the result. No geometry lives here. Fallible
+//! core work goes through one helper, `errors::detach_core`, which releases the GIL and maps the
+//! core's error to its Python exception.
 
 // Return types of PyO3 functions (tuples of bound numpy arrays) are long by nature.
 #![allow(clippy::type_complexity)]

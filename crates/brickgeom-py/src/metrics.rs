@@ -4,7 +4,7 @@ use numpy::PyReadonlyArray2;
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 
-use crate::errors::IntoPyResult;
+use crate::errors::detach_core;
 
 /// Copy an (N, 3) float32 array into points; ValueError naming the expected shape otherwise.
 fn points(name: &str, a: &PyReadonlyArray2<'_, f32>) -> PyResult<Vec<[f32; 3]>> {
@@ -29,7 +29,7 @@ fn chamfer_distance(
 ) -> PyResult<f64> {
     let a = points("a", &a)?;
     let b = points("b", &b)?;
-    py.detach(|| brickgeom::metrics::chamfer(&a, &b)).py()
+    detach_core(py, || brickgeom::metrics::chamfer(&a, &b))
 }
 
 /// Minimum-cost assignment of a 2-D float64 cost matrix, like scipy's `linear_sum_assignment`:
@@ -43,7 +43,7 @@ fn linear_assignment(
     let c = cost.as_array();
     let rows: Vec<Vec<f64>> = c.rows().into_iter().map(|r| r.to_vec()).collect();
     // An (n, 0) matrix gives n empty rows, and no pairs.
-    let asg = py.detach(|| brickgeom::metrics::hungarian(&rows)).py()?;
+    let asg = detach_core(py, || brickgeom::metrics::hungarian(&rows))?;
     Ok(asg
         .into_iter()
         .enumerate()

@@ -14,7 +14,7 @@ use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
-use crate::errors::IntoPyResult;
+use crate::errors::{detach_core, IntoPyResult};
 use crate::geom::PyAssembly;
 
 /// A weak-perspective camera (angles in degrees, scale in NDC per LDU, translation in NDC).
@@ -198,9 +198,7 @@ fn render<'py>(
     let src = source(ldraw_dir);
     let asm = &assembly.inner;
     let cam = camera.inner;
-    let r = py
-        .detach(|| render_assembly(asm, &cam, &opts, &colours, &src))
-        .py()?;
+    let r = detach_core(py, || render_assembly(asm, &cam, &opts, &colours, &src))?;
     let (h, w) = (r.height as usize, r.width as usize);
     let frac = r.visible_fraction();
     let d = PyDict::new(py);

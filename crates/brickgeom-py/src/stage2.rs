@@ -8,7 +8,7 @@ use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
 
-use crate::errors::IntoPyResult;
+use crate::errors::detach_core;
 use crate::geom::{PyAssembly, PyComponent};
 use crate::render::PyCamera;
 
@@ -114,9 +114,7 @@ fn infer_step_py<'py>(
     };
     let asm = &base.inner;
     let cam = camera.inner;
-    let preds = py
-        .detach(|| infer_step(asm, &cam, width, height, &tds, &opts))
-        .py()?;
+    let preds = detach_core(py, || infer_step(asm, &cam, width, height, &tds, &opts))?;
     let out = PyList::empty(py);
     for p in preds {
         let d = PyDict::new(py);
@@ -161,9 +159,9 @@ fn abys_step_py<'py>(
     }
     let asm = &base.inner;
     let cam = camera.inner;
-    let res = py
-        .detach(|| abys_step(asm, &cam, width, height, &list, time_limit_s))
-        .py()?;
+    let res = detach_core(py, || {
+        abys_step(asm, &cam, width, height, &list, time_limit_s)
+    })?;
     Ok(res
         .into_iter()
         .map(|(p, iou, t)| (p.map(|p| (p.yaw, (p.t[0], p.t[1], p.t[2]))), iou, t))
@@ -195,9 +193,9 @@ fn abys_ranked_py<'py>(
     let comp = component.get().inner.clone();
     let asm = &base.inner;
     let cam = camera.inner;
-    let (ranked, timed_out) = py
-        .detach(|| abys_ranked(asm, &comp, &cam, width, height, &m, k, time_limit_s))
-        .py()?;
+    let (ranked, timed_out) = detach_core(py, || {
+        abys_ranked(asm, &comp, &cam, width, height, &m, k, time_limit_s)
+    })?;
     Ok((
         ranked
             .into_iter()

@@ -13,7 +13,7 @@ use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
 
-use crate::errors::IntoPyResult;
+use crate::errors::{detach_core, IntoPyResult};
 
 /// Camera parameters as a dict (the `manual.json` form).
 pub fn camera_dict<'py>(py: Python<'py>, c: &Camera) -> PyResult<Bound<'py, PyDict>> {
@@ -159,23 +159,21 @@ fn synth_manual<'py>(
     ldraw_dir: Option<PathBuf>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let cfg = config_from(config)?;
-    let (manual, main_imgs, sub_imgs) = py
-        .detach(|| -> Result<_, BrickGeomError> {
-            let src = match &ldraw_dir {
-                None => MeshSource::builtin(),
-                Some(r) => MeshSource::ldraw(r),
-            };
-            let colours = ColourTable::builtin();
-            let m = generate(&cfg, seed)?;
-            let main = render_build(&m.main, &cfg, &src, &colours)?;
-            let subs = m
-                .submodules
-                .iter()
-                .map(|s| render_build(&s.build, &cfg, &src, &colours))
-                .collect::<Result<Vec<_>, _>>()?;
-            Ok((m, main, subs))
-        })
-        .py()?;
+    let (manual, main_imgs, sub_imgs) = detach_core(py, || {
+        let src = match &ldraw_dir {
+            None => MeshSource::builtin(),
+            Some(r) => MeshSource::ldraw(r),
+        };
+        let colours = ColourTable::builtin();
+        let m = generate(&cfg, seed)?;
+        let main = render_build(&m.main, &cfg, &src, &colours)?;
+        let subs = m
+            .submodules
+            .iter()
+            .map(|s| render_build(&s.build, &cfg, &src, &colours))
+            .collect::<Result<Vec<_>, _>>()?;
+        Ok((m, main, subs))
+    })?;
     let d = PyDict::new(py);
     d.set_item("seed", seed)?;
     d.set_item("image_size", cfg.image_size)?;
@@ -288,25 +286,23 @@ fn render_plan<'py>(
         supersample,
         ..SynthConfig::default()
     };
-    let (images, attach) = py
-        .detach(|| -> Result<_, BrickGeomError> {
-            let src = match &ldraw_dir {
-                None => MeshSource::builtin(),
-                Some(r) => MeshSource::ldraw(r),
-            };
-            let images = render_build(&build, &cfg, &src, &ColourTable::builtin())?;
-            let attach: Vec<Vec<&str>> = build
-                .step_checks()
-                .into_iter()
-                .map(|step| {
-                    step.into_iter()
-                        .map(|r| r.map_or("unsupported", |k| k.name()))
-                        .collect()
-                })
-                .collect();
-            Ok((images, attach))
-        })
-        .py()?;
+    let (images, attach) = detach_core(py, || {
+        let src = match &ldraw_dir {
+            None => MeshSource::builtin(),
+            Some(r) => MeshSource::ldraw(r),
+        };
+        let images = render_build(&build, &cfg, &src, &ColourTable::builtin())?;
+        let attach: Vec<Vec<&str>> = build
+            .step_checks()
+            .into_iter()
+            .map(|step| {
+                step.into_iter()
+                    .map(|r| r.map_or("unsupported", |k| k.name()))
+                    .collect()
+            })
+            .collect();
+        Ok((images, attach))
+    })?;
     let d = build_dict(py, &build, images)?;
     let steps_list = d.get_item("steps")?.expect("build_dict sets steps");
     for (s, a) in steps_list.try_iter()?.zip(attach) {
