@@ -37,6 +37,8 @@ class Component:
         poses: npt.NDArray[np.int64],
         colours: list[int] | None = None,
     ) -> Component: ...
+    @staticmethod
+    def from_placed(name: str, placed: list[tuple[Component, int, _Int3, int]]) -> Component: ...
     @property
     def name(self) -> str: ...
     @property
@@ -161,17 +163,51 @@ def render_plan(
 def chamfer_distance(a: npt.NDArray[np.float32], b: npt.NDArray[np.float32]) -> float: ...
 def linear_assignment(cost: npt.NDArray[np.float64]) -> tuple[list[int], list[int]]: ...
 
-# Stage 2 (wrapped by mepnet.predictors / mepnet.eval)
+# Stage 2 (wrapped by mepnet.stage2)
+@final
+class StepDetections:
+    def __new__(
+        cls,
+        component: Component,
+        count: int,
+        keypoints: npt.NDArray[np.float64],
+        scores: npt.NDArray[np.float32],
+        rotations: npt.NDArray[np.float32] | None = None,
+        masks: npt.NDArray[np.bool_] | None = None,
+    ) -> StepDetections: ...
+    @property
+    def count(self) -> int: ...
+    def __len__(self) -> int: ...
+
+@final
+class PlacedInstance:
+    @property
+    def type(self) -> int: ...
+    @property
+    def detection(self) -> int | None: ...
+    @property
+    def yaw(self) -> int | None: ...
+    @property
+    def t(self) -> _Int3 | None: ...
+    @property
+    def attach(self) -> str | None: ...
+    @property
+    def error_px(self) -> float: ...
+    @property
+    def iou(self) -> float | None: ...
+    @property
+    def failure(self) -> str | None: ...
+
 def infer_step(
     base: Assembly,
     camera: Camera,
     width: int,
     height: int,
-    types: list[dict[str, Any]],
+    types: list[StepDetections],
     max_error_px: float = 6.0,
     tie_px: float = 2.5,
     rotation_by_mask: bool = True,
-) -> list[dict[str, Any]]: ...
+) -> list[PlacedInstance]: ...
 def abys_ranked(
     base: Assembly,
     camera: Camera,

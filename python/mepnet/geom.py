@@ -75,20 +75,14 @@ def manual_camera(
 
 
 def submodule_from_placed(
-    name: str, placed: "list[tuple[Component, int, tuple[int, int, int], int]]"
+    name: str, placed: list[tuple[Component, int, tuple[int, int, int], int]]
 ) -> Component:
     """A submodule as one component from its placed components ``(component, yaw, t, colour)``
-    in its own frame: every brick of every component, turned and moved with it. The one colour
-    rule: a brick drawn in LDraw's main colour 16 takes the colour its component was placed
-    with; any other colour is the brick's own."""
-    parts, poses, colours = [], [], []
-    for comp, yaw, t, colour in placed:
-        for part, byaw, bt, bcolour in comp.bricks:
-            parts.append(part)
-            poses.append([(yaw + byaw) % 4, *rotate_lattice(bt, yaw, t)])
-            colours.append(colour if bcolour == 16 else bcolour)
-    return Component.from_bricks(
-        name, parts, np.array(poses, dtype=np.int64).reshape(-1, 4), colours
+    in its own frame (:meth:`Component.from_placed`, in the core: every brick placed with its
+    component; a brick in LDraw's main colour 16 takes the colour its component is placed
+    with, any other colour is the brick's own)."""
+    return Component.from_placed(
+        name, [(c, int(y), tuple(int(v) for v in t), int(col)) for c, y, t, col in placed]
     )
 
 

@@ -168,6 +168,23 @@ impl PyComponent {
         })
     }
 
+    /// A submodule from placed components `(component, yaw, (x, y, z), colour)` in its own
+    /// frame: every brick of every component placed with it; a brick in LDraw's main colour 16
+    /// takes the colour its component is placed with (the one colour rule, in the core).
+    #[staticmethod]
+    fn from_placed(
+        name: &str,
+        placed: Vec<(PyRef<'_, PyComponent>, i64, Int3, i32)>,
+    ) -> PyResult<Self> {
+        let mut items = Vec::with_capacity(placed.len());
+        for (c, yaw, t, colour) in &placed {
+            items.push((c.inner.as_ref(), pose(*yaw, *t)?, *colour));
+        }
+        Ok(PyComponent {
+            inner: Arc::new(Component::from_placed(name.to_string(), items).py()?),
+        })
+    }
+
     #[getter]
     fn name(&self) -> &str {
         &self.inner.name

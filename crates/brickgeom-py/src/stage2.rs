@@ -1,12 +1,12 @@
 //! Stage 2 (pose inference, `brickgeom::stage2`) and the analysis-by-synthesis baseline.
 
 use brickgeom::stage2::{
-    abys_ranked, abys_step, infer_step, rotation_class, Detection, InferOptions, TypeDetections,
+    abys_ranked, abys_step, infer_step, rotation_class, Detection, InferOptions,
+    InstancePrediction, TypeDetections,
 };
-use numpy::PyReadonlyArray2;
+use numpy::{PyReadonlyArray1, PyReadonlyArray2, PyReadonlyArray3};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
-use pyo3::types::{PyDict, PyList};
 
 use crate::errors::detach_core;
 use crate::geom::{PyAssembly, PyComponent};
@@ -34,79 +34,183 @@ fn rotation_class_py(symmetry: u8, yaw: u8) -> u8 {
     rotation_class(symmetry, yaw % 4)
 }
 
-/// Stage 2 for one step. `types`: list of dicts {component, count, detections: [{keypoint:
-/// (x, y) px, score, rotation: 7 probabilities or None, mask: (H, W) bool array or None}]}.
-/// Returns one dict per instance: {type, detection, yaw, t, attach, error_px, iou, failure}
-/// (yaw/t/attach None on failure). `rotation_by_mask`: primitives with a mask choose the yaw by
-/// mask IoU plus class probability.
+/// The detections of one component type of a step, as stage 2 takes them (a frozen wrapper over
+/// the core's `TypeDetections`): the component, how many instances the step adds, and per
+/// detection (N of them) `keypoints` (N, 2) float64 pixels, `scores` (N,) float32,
+/// `rotations` (N, 7) float32 class probabilities or None, `masks` (N, H, W) bool or None.
+#[pyclass(name = "StepDetections", module = "mepnet._brickgeom", frozen)]
+pub struct PyStepDetections {
+    inner: TypeDetections,
+    /// (H, W) of the masks, when there are masks.
+    mask_shape: Option<(usize, usize)>,
+}
+
+#[pymethods]
+impl PyStepDetections {
+    #[new]
+    #[pyo3(signature = (component, count, keypoints, scores, rotations=None, masks=None))]
+    fn new(
+        component: &PyComponent,
+        count: usize,
+        keypoints: PyReadonlyArray2<'_, f64>,
+        scores: PyReadonlyArray1<'_, f32>,
+        rotations: Option<PyReadonlyArray2<'_, f32>>,
+        masks: Option<PyReadonlyArray3<'_, bool>>,
+    ) -> PyResult<Self> {
+        if count > 1000 {
+            return Err(PyValueError::new_err(format!("count {count} is absurd")));
+        }
+        let kp = keypoints.as_array();
+        let n = kp.nrows();
+        if kp.ncols() != 2 {
+            return Err(PyValueError::new_err(format!(
+                "keypoints must have shape (N, 2), got {:?}",
+                kp.shape()
+            )));
+        }
+        let sc = scores.as_array();
+        if sc.len() != n {
+            return Err(PyValueError::new_err(format!(
+                "scores must have shape ({n},), got {:?}",
+                sc.shape()
+            )));
+        }
+        let rot = rotations.as_ref().map(|r| r.as_array());
+        if let Some(r) = &rot {
+            if r.shape() != [n, 7] {
+                return Err(PyValueError::new_err(format!(
+                    "rotations must have shape ({n}, 7), got {:?}",
+                    r.shape()
+                )));
+            }
+        }
+        let m = masks.as_ref().map(|m| m.as_array());
+        let mask_shape = match &m {
+            Some(m) if m.shape()[0] != n => {
+                return Err(PyValueError::new_err(format!(
+                    "masks must have shape ({n}, H, W), got {:?}",
+                    m.shape()
+                )))
+            }
+            Some(m) => Some((m.shape()[1], m.shape()[2])),
+            None => None,
+        };
+        let detections = (0..n)
+            .map(|i| Detection {
+                keypoint: [kp[[i, 0]], kp[[i, 1]]],
+                score: sc[i],
+                rotation: rot.as_ref().map(|r| std::array::from_fn(|k| r[[i, k]])),
+                mask: m.as_ref().map(|m| {
+                    m.index_axis(numpy::ndarray::Axis(0), i)
+                        .iter()
+                        .copied()
+                        .collect()
+                }),
+            })
+            .collect();
+        Ok(PyStepDetections {
+            inner: TypeDetections {
+                component: component.inner.clone(),
+                count,
+                detections,
+            },
+            mask_shape,
+        })
+    }
+
+    /// How many instances of the type the step adds.
+    #[getter]
+    fn count(&self) -> usize {
+        self.inner.count
+    }
+
+    fn __len__(&self) -> usize {
+        self.inner.detections.len()
+    }
+}
+
+/// One instance as stage 2 placed it (a frozen wrapper over the core's `InstancePrediction`):
+/// `type` (index into the types given), `detection` (the detection used, or None), `yaw` and
+/// `t` (None on failure), `attach`, `error_px` (keypoint reprojection error), `iou` (mask IoU
+/// when a mask was used), `failure` (why there is no pose).
+#[pyclass(name = "PlacedInstance", module = "mepnet._brickgeom", frozen)]
+pub struct PyPlacedInstance {
+    inner: InstancePrediction,
+}
+
+#[pymethods]
+impl PyPlacedInstance {
+    #[getter(r#type)]
+    fn type_index(&self) -> usize {
+        self.inner.type_index
+    }
+    #[getter]
+    fn detection(&self) -> Option<usize> {
+        self.inner.detection
+    }
+    #[getter]
+    fn yaw(&self) -> Option<u8> {
+        self.inner.pose.map(|p| p.yaw)
+    }
+    #[getter]
+    fn t(&self) -> Option<(i32, i32, i32)> {
+        self.inner.pose.map(|p| (p.t[0], p.t[1], p.t[2]))
+    }
+    #[getter]
+    fn attach(&self) -> Option<&'static str> {
+        self.inner.attach.map(|a| a.name())
+    }
+    #[getter]
+    fn error_px(&self) -> f64 {
+        self.inner.error_px
+    }
+    #[getter]
+    fn iou(&self) -> Option<f64> {
+        self.inner.iou
+    }
+    #[getter]
+    fn failure(&self) -> Option<&str> {
+        self.inner.failure.as_deref()
+    }
+    fn __repr__(&self) -> String {
+        format!(
+            "PlacedInstance(type={}, yaw={:?}, t={:?}, attach={:?}, failure={:?})",
+            self.inner.type_index,
+            self.yaw(),
+            self.t(),
+            self.attach(),
+            self.inner.failure
+        )
+    }
+}
+
+/// Stage 2 for one step: `types` is a list of `StepDetections`; returns one `PlacedInstance`
+/// per instance the step adds. `rotation_by_mask`: primitives with a mask choose the yaw by mask
+/// IoU plus class probability.
 #[pyfunction(name = "infer_step")]
 #[pyo3(signature = (base, camera, width, height, types, max_error_px=6.0, tie_px=2.5, rotation_by_mask=true))]
 #[allow(clippy::too_many_arguments)]
-fn infer_step_py<'py>(
-    py: Python<'py>,
+fn infer_step_py(
+    py: Python<'_>,
     base: &PyAssembly,
     camera: &PyCamera,
     width: u32,
     height: u32,
-    types: &Bound<'py, PyList>,
+    types: Vec<PyRef<'_, PyStepDetections>>,
     max_error_px: f64,
     tie_px: f64,
     rotation_by_mask: bool,
-) -> PyResult<Bound<'py, PyList>> {
-    let mut tds = Vec::new();
+) -> PyResult<Vec<PyPlacedInstance>> {
     for (ti, t) in types.iter().enumerate() {
-        let t = t.cast::<PyDict>()?;
-        let get = |k: &str| -> PyResult<Bound<'py, PyAny>> {
-            t.get_item(k)?
-                .ok_or_else(|| PyValueError::new_err(format!("type {ti}: missing '{k}'")))
-        };
-        let comp = get("component")?;
-        let comp = comp.cast::<PyComponent>()?;
-        let count: usize = get("count")?.extract()?;
-        if count > 1000 {
-            return Err(PyValueError::new_err(format!(
-                "type {ti}: count {count} is absurd"
-            )));
+        if let Some((h, w)) = t.mask_shape {
+            if (h, w) != (height as usize, width as usize) {
+                return Err(PyValueError::new_err(format!(
+                    "type {ti}: masks are ({h}, {w}), the image is ({height}, {width})"
+                )));
+            }
         }
-        let mut dets = Vec::new();
-        for (di, d) in get("detections")?.try_iter()?.enumerate() {
-            let d = d?;
-            let d = d.cast::<PyDict>()?;
-            let what = format!("type {ti} detection {di}");
-            let kp: (f64, f64) = d
-                .get_item("keypoint")?
-                .ok_or_else(|| PyValueError::new_err(format!("{what}: missing 'keypoint'")))?
-                .extract()?;
-            let score: f32 = d
-                .get_item("score")?
-                .map(|v| v.extract())
-                .transpose()?
-                .unwrap_or(1.0);
-            let rotation: Option<[f32; 7]> = match d.get_item("rotation")? {
-                None => None,
-                Some(v) if v.is_none() => None,
-                Some(v) => Some(v.extract().map_err(|_| {
-                    PyValueError::new_err(format!("{what}: rotation must be 7 class probabilities"))
-                })?),
-            };
-            let mask = match d.get_item("mask")? {
-                None => None,
-                Some(v) if v.is_none() => None,
-                Some(v) => Some(mask_vec(&v, width, height, &what)?),
-            };
-            dets.push(Detection {
-                keypoint: [kp.0, kp.1],
-                score,
-                rotation,
-                mask,
-            });
-        }
-        tds.push(TypeDetections {
-            component: comp.get().inner.clone(),
-            count,
-            detections: dets,
-        });
     }
+    let tds: Vec<TypeDetections> = types.iter().map(|t| t.inner.clone()).collect();
     let opts = InferOptions {
         max_error_px,
         tie_px,
@@ -115,20 +219,10 @@ fn infer_step_py<'py>(
     let asm = &base.inner;
     let cam = camera.inner;
     let preds = detach_core(py, || infer_step(asm, &cam, width, height, &tds, &opts))?;
-    let out = PyList::empty(py);
-    for p in preds {
-        let d = PyDict::new(py);
-        d.set_item("type", p.type_index)?;
-        d.set_item("detection", p.detection)?;
-        d.set_item("yaw", p.pose.map(|x| x.yaw))?;
-        d.set_item("t", p.pose.map(|x| (x.t[0], x.t[1], x.t[2])))?;
-        d.set_item("attach", p.attach.map(|a| a.name()))?;
-        d.set_item("error_px", p.error_px)?;
-        d.set_item("iou", p.iou)?;
-        d.set_item("failure", p.failure)?;
-        out.append(d)?;
-    }
-    Ok(out)
+    Ok(preds
+        .into_iter()
+        .map(|inner| PyPlacedInstance { inner })
+        .collect())
 }
 
 /// Pure analysis-by-synthesis: `instances` is a list of (component, mask (H, W) bool); returns
@@ -206,6 +300,8 @@ fn abys_ranked_py<'py>(
 }
 
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_class::<PyStepDetections>()?;
+    m.add_class::<PyPlacedInstance>()?;
     m.add_function(wrap_pyfunction!(infer_step_py, m)?)?;
     m.add_function(wrap_pyfunction!(abys_step_py, m)?)?;
     m.add_function(wrap_pyfunction!(abys_ranked_py, m)?)?;

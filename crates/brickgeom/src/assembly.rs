@@ -629,15 +629,10 @@ impl Assembly {
     pub fn bricks(&self) -> Vec<Brick> {
         self.instances()
             .flat_map(|(_, inst)| {
-                inst.component.bricks.iter().map(move |b| Brick {
-                    part: b.part,
-                    pose: inst.pose.compose(&b.pose),
-                    colour: if b.colour == MAIN_COLOUR {
-                        inst.colour
-                    } else {
-                        b.colour
-                    },
-                })
+                inst.component
+                    .bricks
+                    .iter()
+                    .map(move |b| b.placed_by(&inst.pose, inst.colour))
             })
             .collect()
     }

@@ -19,6 +19,23 @@ pub struct Brick {
     pub colour: i32,
 }
 
+impl Brick {
+    /// This brick as placed by its component standing at `pose` in `colour`: the poses compose,
+    /// and the one colour rule of LDraw: a brick in `MAIN_COLOUR` takes the colour its component
+    /// is placed with; any other colour is the brick's own.
+    pub fn placed_by(&self, pose: &Pose, colour: i32) -> Brick {
+        Brick {
+            part: self.part,
+            pose: pose.compose(&self.pose),
+            colour: if self.colour == MAIN_COLOUR {
+                colour
+            } else {
+                self.colour
+            },
+        }
+    }
+}
+
 /// A placeable unit: a primitive part or a submodule (a union of placed bricks).
 ///
 /// All geometry is in the component frame (lattice units, y up). For a primitive this is the
@@ -70,6 +87,19 @@ impl Component {
         c.is_submodule = false;
         c.symmetry = def.symmetry;
         Ok(c)
+    }
+
+    /// A submodule from placed components `(component, pose, colour)` in its own frame: every
+    /// brick of every component, placed with it (:meth:`Brick::placed_by`).
+    pub fn from_placed<'a>(
+        name: String,
+        placed: impl IntoIterator<Item = (&'a Component, Pose, i32)>,
+    ) -> Result<Component> {
+        let bricks = placed
+            .into_iter()
+            .flat_map(|(c, pose, colour)| c.bricks.iter().map(move |b| b.placed_by(&pose, colour)))
+            .collect();
+        Component::from_bricks(name, bricks)
     }
 
     /// A submodule from placed bricks (e.g. an assembly's instances). Connection points that its

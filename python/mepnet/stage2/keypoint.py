@@ -11,6 +11,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
+
 from mepnet import _brickgeom as _bg
 from mepnet.detector.detections import TypeDetections
 from mepnet.stage2.base import Prediction, StepContext
@@ -41,35 +43,30 @@ def lift_keypoints(
         w,
         h,
         [
-            {
-                "component": t.component,
-                "count": t.count,
-                "detections": [
-                    {
-                        "keypoint": tuple(t.detections.keypoints[j]),
-                        "score": float(t.detections.scores[j]),
-                        "rotation": t.detections.rotations[j].tolist(),
-                        "mask": t.detections.masks[j],
-                    }
-                    for j in range(len(t.detections))
-                ],
-            }
+            _bg.StepDetections(
+                t.component,
+                t.count,
+                np.ascontiguousarray(t.detections.keypoints, np.float64),
+                np.ascontiguousarray(t.detections.scores, np.float32),
+                np.ascontiguousarray(t.detections.rotations, np.float32),
+                np.ascontiguousarray(t.detections.masks, bool),
+            )
             for t in types
         ],
         tie_px=tie_px,
     )
     preds = []
     for p in out:
-        entry = types[p["type"]].entry
+        entry = types[p.type].entry
         preds.append(
             Prediction(
                 entry=entry,
                 component=ctx.step.components[entry].component,
-                yaw=p["yaw"],
-                t=tuple(p["t"]) if p["t"] is not None else None,
-                attach=p["attach"],
-                failure=p["failure"],
-                extra={"error_px": p["error_px"], "iou": p["iou"]},
+                yaw=p.yaw,
+                t=p.t,
+                attach=p.attach,
+                failure=p.failure,
+                extra={"error_px": p.error_px, "iou": p.iou},
             )
         )
     return preds

@@ -5,6 +5,7 @@ validation accuracy against steps)."""
 from __future__ import annotations
 
 import csv
+import io
 import json
 import math
 import os
@@ -87,9 +88,9 @@ class MetricsLog:
         else:
             right.text(0.5, 0.5, "no validation (--val-dir)", ha="center", va="center")
         fig.tight_layout()
-        tmp = self.out / ".tmp-curves.png"
-        fig.savefig(tmp, format="png")
-        os.replace(tmp, self.out / "curves.png")
+        buf = io.BytesIO()
+        fig.savefig(buf, format="png")
+        atomic_write_bytes(self.out / "curves.png", buf.getvalue())
 
 
 def _long(row: dict[str, Any]) -> list[tuple[Any, ...]]:
@@ -101,7 +102,6 @@ def _long(row: dict[str, Any]) -> list[tuple[Any, ...]]:
 
 
 def _csv_bytes(lines: list[tuple[Any, ...]]) -> bytes:
-    import io
 
     buf = io.StringIO()
     csv.writer(buf).writerows(lines)
