@@ -10,19 +10,36 @@ import pytest
 import torch
 from conftest import generate_manuals
 from mepnet import _brickgeom as _bg
-from mepnet.data import load_manual
-from mepnet.model.config import ModelConfig
-from mepnet.model.decode import decode
-from mepnet.model.losses import total_loss
-from mepnet.model.net import StateEncoder, build_model
-from mepnet.model.targets import base_voxels, collate, make_sample, restyle_lines
+from mepnet.detector.config import ModelConfig
+from mepnet.detector.decode import decode
+from mepnet.detector.detections import TypeDetections
+from mepnet.detector.losses import total_loss
+from mepnet.detector.net import StateEncoder, build_model
+from mepnet.detector.targets import base_voxels, collate, make_sample, restyle_lines
+from mepnet.errors import ConfigError
+from mepnet.manual import Manual, load_manual
 from mepnet.state import state_projection
+from mepnet.train.data import training_sample
 
 
 @pytest.fixture(scope="module")
 def manual(tmp_path_factory: pytest.TempPathFactory):
     out = generate_manuals(tmp_path_factory.mktemp("m"), 1, 5, size=64)
     return load_manual(out / "manual_00000005")
+
+
+def sample(manual: Manual, k: int, cfg: ModelConfig, with_truth: bool = True, **kw):
+    """Step ``k`` of the main build as a sample, on its true base shape."""
+    answers = manual.answers
+    comps = answers.components(manual)
+    return make_sample(
+        manual.main.steps[k],
+        cfg,
+        base=answers.main.assembly_before(k, comps),
+        components=comps,
+        truth=answers.main.truth(k) if with_truth else None,
+        **kw,
+    )
 
 
 def test_first_hit_projection_lands_on_the_voxels_the_rays_hit():
@@ -80,7 +97,7 @@ def test_forward_shapes_loss_and_decoding(manual):
     torch.manual_seed(0)
     net = build_model(cfg)
     samples = [
-        make_sample(manual, manual.main, k, cfg, augment=True, rng=np.random.default_rng(k))
+        training_sample(manual, (None, k), cfg, augment=True, rng=np.random.default_rng(k))
         for k in range(3)
     ]
     batch = collate(samples)
@@ -113,26 +130,43 @@ def test_forward_shapes_loss_and_decoding(manual):
         out = net(collate(samples[:1]))
     counts = [c.count for c in manual.main.steps[0].components]
     dets = decode(out, counts, cfg, 64)
-    assert [len(d) for d in dets] == counts
-    for d in dets[0]:
-        assert 0 <= d["keypoint"][0] <= 64 and 0 <= d["keypoint"][1] <= 64
-        assert len(d["rotation"]) == 7 and abs(sum(d["rotation"]) - 1) < 1e-4
+    assert all(isinstance(d, TypeDetections) for d in dets)
+    assert [len(d) for d in dets] == counts[: cfg.k_max]
+    for d in dets:
+        n = len(d)
+        assert d.keypoints.shape == (n, 2) and d.scores.shape == (n,)
+        assert ((0 <= d.keypoints) & (d.keypoints <= 64)).all()
+        assert d.rotations.shape == (n, 7)
+        assert np.abs(d.rotations.sum(axis=1) - 1).max() < 1e-4
+        assert d.masks.shape == (n, 64, 64) and d.masks.dtype == bool
+        assert d.type_prob is not None and d.type_prob.shape == (64, 64)
+    # the slots of a larger image: keypoints and masks in its pixels
+    wide = decode(out, counts, cfg, (128, 96))
+    for d in wide:
+        assert d.masks.shape[1:] == (96, 128)
+        assert (d.keypoints[:, 0] <= 128).all() and (d.keypoints[:, 1] <= 96).all()
 
 
 def test_targets_put_one_peak_per_instance(manual):
     cfg = ModelConfig.tiny()
     for k, step in enumerate(manual.main.steps[:5]):
-        t = make_sample(manual, manual.main, k, cfg).tensors
-        assert int(t["inst_valid"].sum()) == len(step.views)
+        t = sample(manual, k, cfg).tensors
+        in_slots = step.components[: cfg.k_max]
+        assert int(t["inst_valid"].sum()) == sum(c.count for c in in_slots)
         assert int((t["heatmap"] == 1.0).sum()) >= 1
-        assert t["comp_valid"].sum() == len(step.components)
+        assert t["comp_valid"].sum() == len(in_slots)
         assert t["image"].shape == (4, cfg.image_size, cfg.image_size)
+        # without the answers (what a predictor builds): the same inputs, no targets
+        bare = sample(manual, k, cfg, with_truth=False).tensors
+        for key in ("image", "base_voxels", "state_index", "state_maps", "camera", "comp_voxels"):
+            assert torch.equal(bare[key], t[key]), key
+        assert bare["inst_valid"].sum() == 0 and bare["heatmap"].abs().sum() == 0
 
 
 def test_config_round_trip_and_errors(tmp_path: Path):
     for cfg in (ModelConfig.slim(), ModelConfig.paper(), ModelConfig.tiny()):
         assert ModelConfig.from_dict(cfg.to_dict()) == cfg
-    with pytest.raises(ValueError, match="unknown model settings: nope"):
+    with pytest.raises(ConfigError, match="unknown model settings: nope"):
         ModelConfig.from_dict({"nope": 1})
     p = tmp_path / "c.json"
     import json
@@ -146,11 +180,12 @@ def test_change_map_marks_what_the_step_adds(manual):
 
     cfg = ModelConfig.tiny()
     ious: list[float] = []
-    for k, step in enumerate(manual.main.steps):
-        s = make_sample(manual, manual.main, k, cfg)
+    for k in range(len(manual.main.steps)):
+        s = sample(manual, k, cfg)
         image = s.tensors["image"][:3].numpy()
         state = s.tensors["state_maps"][6:9].numpy()
-        new = np.isin(step.ids(), step.instance_ids)
+        truth = manual.answers.main.truth(k)
+        new = np.isin(truth.ids(), truth.answers.instance_ids)
         for picture in (image, np.clip(image * 0.8 + 0.05, 0, 1)):  # also printed paler
             changed = change_map(picture, state) > 0.15
             ious.append((changed & new).sum() / max((changed | new).sum(), 1))

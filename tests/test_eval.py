@@ -11,8 +11,10 @@ import numpy as np
 import pytest
 from conftest import generate_manuals
 from mepnet import _brickgeom as _bg
+from mepnet.errors import ConfigError
 from mepnet.eval import evaluate
-from mepnet.predictors import AbysPredictor, OraclePredictor, make_predictor
+from mepnet.stage2 import make_predictor
+from mepnet.stage2.baselines import OracleAbysPredictor, OraclePredictor
 
 SHARED = Path(__file__).resolve().parents[2] / "shared"
 
@@ -73,9 +75,10 @@ def test_noise_costs_accuracy_and_cd_grows(manuals: Path):
     assert 0.0 < noisy["mtc"] <= 1.0
 
 
-def test_abys_finds_poses_within_its_limit(manuals: Path):
+def test_oracle_abys_finds_poses_within_its_limit(manuals: Path):
     one = sorted(manuals.iterdir())[0]
-    p = AbysPredictor(time_limit_s=60.0)
+    p = OracleAbysPredictor(time_limit_s=60.0)
+    assert p.name == "oracle-abys"
     m = evaluate(one, p, cd_points=2000, progress=False)
     assert m["n_timeouts"] == 0
     assert m["component_acc"] > 0.8
@@ -97,14 +100,17 @@ def test_bad_input_exits_2(tmp_path: Path, manuals: Path):
             "weights not found",
         ),
         (["--data", str(manuals), "--predictor", "direct3d"], "Direct3D"),
+        (["--data", str(manuals), "--predictor", "abys"], "oracle-abys"),
         (["--data", str(manuals), "--predictor", "oracle-noisy", "--sigma", "-1"], "--sigma"),
     ]
     for args, msg in cases:
         r = run_eval(*args)
         assert r.returncode == 2, args
         assert msg in r.stderr and "Traceback" not in r.stderr
-    with pytest.raises(ValueError, match="unknown predictor"):
+    with pytest.raises(ConfigError, match="unknown predictor"):
         make_predictor("nope")
+    with pytest.raises(ConfigError, match="not part of this build yet"):
+        make_predictor("abys")
 
 
 def test_stage2_binding_checks_its_input():
@@ -112,62 +118,43 @@ def test_stage2_binding_checks_its_input():
     asm.add(_bg.Component.primitive("3001"), 0, (0, 3, 0))
     cam = _bg.Camera(30.0, 225.0, 0.0, 0.01)
     comp = _bg.Component.primitive("3003")
-    det = {"keypoint": (128.0, 100.0), "score": 1.0, "rotation": None, "mask": None}
-    with pytest.raises(ValueError, match=r"mask has shape \[2, 2\]"):
-        _bg.infer_step(
-            asm,
-            cam,
-            64,
-            64,
-            [
-                {
-                    "component": comp,
-                    "count": 1,
-                    "detections": [{**det, "mask": np.zeros((2, 2), bool)}],
-                }
-            ],
-        )
+
+    def dets(count: int = 1, kp=(128.0, 100.0), n: int = 1, **arrays) -> _bg.StepDetections:
+        keypoints = np.tile(np.array([kp], np.float64), (n, 1))
+        return _bg.StepDetections(comp, count, keypoints, np.ones(n, np.float32), **arrays)
+
+    with pytest.raises(ValueError, match=r"masks are \(2, 2\), the image is \(64, 64\)"):
+        _bg.infer_step(asm, cam, 64, 64, [dets(masks=np.zeros((1, 2, 2), bool))])
     with pytest.raises(_bg.InvalidArgumentError, match="not finite"):
-        _bg.infer_step(
-            asm,
-            cam,
-            64,
-            64,
-            [
-                {
-                    "component": comp,
-                    "count": 1,
-                    "detections": [{**det, "keypoint": (float("nan"), 1.0)}],
-                }
-            ],
-        )
-    with pytest.raises(ValueError, match="rotation must be 7"):
-        _bg.infer_step(
-            asm,
-            cam,
-            64,
-            64,
-            [{"component": comp, "count": 1, "detections": [{**det, "rotation": [1.0, 0.0]}]}],
-        )
+        _bg.infer_step(asm, cam, 64, 64, [dets(kp=(float("nan"), 1.0))])
+    # the detections are checked when they are made
+    with pytest.raises(ValueError, match=r"rotations must have shape \(1, 7\)"):
+        dets(rotations=np.zeros((1, 2), np.float32))
+    with pytest.raises(ValueError, match=r"keypoints must have shape \(N, 2\)"):
+        _bg.StepDetections(comp, 1, np.zeros((1, 3)), np.ones(1, np.float32))
+    with pytest.raises(ValueError, match=r"scores must have shape \(1,\)"):
+        _bg.StepDetections(comp, 1, np.zeros((1, 2)), np.ones(2, np.float32))
+    with pytest.raises(ValueError, match=r"masks must have shape \(1, H, W\)"):
+        dets(masks=np.zeros((2, 64, 64), bool))
     with pytest.raises(ValueError, match="absurd"):
-        _bg.infer_step(asm, cam, 64, 64, [{"component": comp, "count": 10**6, "detections": []}])
+        dets(count=10**6, n=0)
     # zero instances: nothing to do; more instances than detections: failures, not a crash
-    assert (
-        _bg.infer_step(asm, cam, 64, 64, [{"component": comp, "count": 0, "detections": [det]}])
-        == []
-    )
-    out = _bg.infer_step(asm, cam, 64, 64, [{"component": comp, "count": 2, "detections": []}])
-    assert [o["failure"] for o in out] == ["fewer detections than instances"] * 2
+    assert _bg.infer_step(asm, cam, 64, 64, [dets(count=0)]) == []
+    out = _bg.infer_step(asm, cam, 64, 64, [dets(count=2, n=0)])
+    assert [o.failure for o in out] == ["fewer detections than instances"] * 2
+    assert [(o.type, o.yaw, o.t) for o in out] == [(0, None, None)] * 2
     with pytest.raises(_bg.InvalidArgumentError, match="image size"):
         _bg.infer_step(asm, cam, 0, 64, [])
     with pytest.raises(ValueError, match="time limit"):
         _bg.abys_step(asm, cam, 64, 64, [], 0.0)
+    with pytest.raises(ValueError, match=r"mask has shape \[2, 2\]"):
+        _bg.abys_step(asm, cam, 64, 64, [(comp, np.zeros((2, 2), bool))], 1.0)
 
 
 @pytest.mark.skipif(not (SHARED / "real").is_dir(), reason=f"real models not found under {SHARED}")
 def test_eval_runs_on_a_converted_real_model(tmp_path: Path):
     from mepnet import ldraw
-    from mepnet.convert import convert
+    from mepnet.ldraw.convert import convert
 
     f = ldraw.read(SHARED / "real" / "models" / "4096 - Micro Wheels - QB 4WD.mpd")
     convert(f, tmp_path / "real", ldraw_dir=str(SHARED / "ldraw"), size=256)
@@ -226,38 +213,38 @@ def test_change_map_tolerates_lines_drawn_unlike_ours(manuals: Path):
     """A manual whose renderer draws thick outlines: without line tolerance every part edge of
     the base reads as changed; with it those false changes mostly go while the new parts stay.
     A picture drawn as we draw keeps its change map."""
-    from mepnet.data import load_manual
-    from mepnet.eval import _gt_components
-    from mepnet.lift import CHANGE_THRESHOLD, step_change, step_picture, tolerate_lines
-    from mepnet.model.targets import restyle_lines
-    from mepnet.predictors import StepContext
-    from mepnet.state import change_map, state_render
+    from mepnet.detector.targets import restyle_lines
+    from mepnet.manual import answers_of, load_manual
+    from mepnet.stage2 import StepContext
+    from mepnet.stage2.synthesis import step_change, step_picture, tolerate_lines
+    from mepnet.state import CHANGE_THRESHOLD, change_map, state_render
 
     m = load_manual(sorted(manuals.iterdir())[0])
-    comps = _gt_components(m)
+    comps = answers_of(m).components(m)
     build = m.main
+    answers = answers_of(m).main
     base = _bg.Assembly()
     rng = np.random.default_rng(5)
     kept = 0
     false_raw = false_tol = hit_raw = hit_tol = 0
-    for step in build.steps:
+    for k, step in enumerate(build.steps):
+        truth = answers.truth(k)
         if len(base):
-            ctx = StepContext(step, base.copy(), comps, m.image_size, build)
+            ctx = StepContext(step, base.copy(), comps, m.image_size)
             picture = step_picture(ctx)
-            ids = step.ids()
+            ids = truth.ids()
             state, outline = state_render(ctx.base, step.camera, m.image_size[0])
             raw = change_map(picture.transpose(2, 0, 1), state)
             kept += int(np.array_equal(step_change(ctx, picture)[0], raw))
             inked = restyle_lines(picture * 255, ids, rng, "thick") / 255
             raw = change_map(inked.transpose(2, 0, 1), state) > CHANGE_THRESHOLD
             tol = tolerate_lines(raw * 1.0, outline) > CHANGE_THRESHOLD
-            new = np.isin(ids, step.instance_ids)
+            new = np.isin(ids, truth.answers.instance_ids)
             false_raw += int((raw & ~new).sum())
             false_tol += int((tol & ~new).sum())
             hit_raw += int((raw & new).sum())
             hit_tol += int((tol & new).sum())
-        for v in step.views:
-            i = build.instances[v.id]
+        for i in truth.placed():
             base.add(comps[i.component], i.yaw, i.t, i.colour)
     n = len(build.steps) - 1
     assert kept >= 0.9 * n, (kept, n)

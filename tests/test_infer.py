@@ -61,10 +61,10 @@ def test_detector_bad_input_exits_2_with_one_line(tmp_path: Path):
     import shutil
 
     import torch
-    from mepnet.checkpoint import save_model
+    from mepnet.detector.config import ModelConfig
+    from mepnet.detector.net import build_model
+    from mepnet.detector.weights import save_model
     from mepnet.infer import bundled_manual
-    from mepnet.model.config import ModelConfig
-    from mepnet.model.net import build_model
 
     manual = tmp_path / "manual"
     shutil.copytree(bundled_manual(), manual)
@@ -107,36 +107,52 @@ def test_wrong_image_size_is_resized_and_said(tmp_path: Path):
 
 
 def test_more_types_than_slots_take_several_passes(tmp_path: Path):
-    """Steps merged into one that adds more component types than the detector's 5 slots: every
+    """Steps merged into one whose callout has more entries than the detector's 5 slots: every
     instance still gets a prediction, from two forward passes."""
     import json
+    import math
     import shutil
 
     import torch
-    from mepnet.data import load_manual
-    from mepnet.model.config import ModelConfig
-    from mepnet.model.decode import MEPNetPredictor
-    from mepnet.model.net import build_model
-    from mepnet.plan import make_plan
+    from mepnet.detector.config import ModelConfig
+    from mepnet.detector.net import build_model
+    from mepnet.manual import load_manual
+    from mepnet.plan import plan_json, run_manual
+    from mepnet.stage2.detector import MEPNetPredictor
 
     src = generate_manuals(tmp_path / "data", 1, 41, size=64) / "manual_00000041"
     doc = json.loads((src / "manual.json").read_text())
-    steps = doc["steps"]
+    assert doc["version"] == 2
+    steps, answers = doc["steps"], doc["answers"]["steps"]
 
-    # the shortest run of consecutive steps whose union has >= 6 distinct types
     def key(c: dict) -> str:
-        return json.dumps(c["component"], sort_keys=True)
+        return json.dumps({k: v for k, v in c.items() if k != "count"}, sort_keys=True)
 
+    def merge(n: int) -> tuple[list[dict], list[list[int]], list[dict]]:
+        """The callout, instance groups and views of the first ``n`` steps as one step (one
+        callout entry per part and colour, as a page draws it)."""
+        counts: dict[str, dict] = {}
+        groups: dict[str, list[int]] = {}
+        for st, ans in zip(steps[:n], answers[:n], strict=True):
+            for c, ids in zip(st["components"], ans["components"], strict=True):
+                k = key(c)
+                counts.setdefault(k, {**c, "count": 0})["count"] += c["count"]
+                groups.setdefault(k, []).extend(ids)
+        views = [v for ans in answers[:n] for v in ans["instances"]]
+        return list(counts.values()), list(groups.values()), views
+
+    # the shortest run of consecutive steps whose union has >= 6 callout entries
     for n in range(2, len(steps) + 1):
-        types = {key(c) for st in steps[:n] for c in st["components"]}
-        if len(types) >= 6:
+        callout, groups, views = merge(n)
+        if len(callout) >= 6:
             break
     else:
-        raise AssertionError("the generated manual has fewer than 6 types")
-    merged = dict(steps[n - 1])
-    merged["components"] = [c for st in steps[:n] for c in st["components"]]
-    merged["instances"] = [v for st in steps[:n] for v in st["instances"]]
-    doc["steps"] = [merged, *steps[n:]]
+        raise AssertionError("the generated manual has fewer than 6 callout entries")
+    doc["steps"] = [{**steps[n - 1], "components": callout}, *steps[n:]]
+    doc["answers"]["steps"] = [
+        {**answers[n - 1], "components": groups, "instances": views},
+        *answers[n:],
+    ]
     for i, st in enumerate(doc["steps"]):
         st["index"] = i + 1
     manual = tmp_path / "merged"
@@ -149,11 +165,17 @@ def test_more_types_than_slots_take_several_passes(tmp_path: Path):
     predictor = MEPNetPredictor(build_model(cfg).eval(), cfg)
     calls = []
     predictor.model.register_forward_hook(lambda *a: calls.append(1))
-    plan, _, _ = make_plan(man, predictor)
-    n_first = sum(c["count"] for c in merged["components"])
+    entries: list[int] = []  # callout entries of every step the predictor saw
+    predict = predictor.predict
+    predictor.predict = lambda ctx: entries.append(len(ctx.step.components)) or predict(ctx)
+    plan = plan_json(run_manual(man, predictor))
+    n_first = sum(c["count"] for c in callout)
     assert len(plan["steps"][0]["components"]) == n_first
-    # the first step took two passes, every other step of the main build one
-    assert len(calls) - len(plan["steps"]) - sum(len(s["steps"]) for s in plan["submodules"]) == 1
+    assert len(entries) == len(man.all_steps())
+    # the main build runs last: its first step took two passes, every step ceil(entries / 5)
+    assert math.ceil(entries[-len(man.main.steps)] / cfg.k_max) == 2
+    assert len(calls) == sum(math.ceil(e / cfg.k_max) for e in entries)
+    assert len(calls) > len(entries)
 
 
 def test_bad_model_exits_2(tmp_path: Path):

@@ -9,6 +9,7 @@ from pathlib import Path
 import mepnet
 import pytest
 from mepnet import ldraw
+from mepnet.ldraw.io import IDENTITY
 
 REAL = Path(__file__).resolve().parents[2] / "shared" / "real" / "models"
 LDRAW_ROOT = Path(__file__).resolve().parents[2] / "shared" / "ldraw"
@@ -68,7 +69,7 @@ def test_pose_conversion_inverts():
             False,
             False,
         )
-    assert ldraw.lattice_pose((5.0, 0.0, 0.0), ldraw.IDENTITY)[2] is True  # half a half-stud off
+    assert ldraw.lattice_pose((5.0, 0.0, 0.0), IDENTITY)[2] is True  # half a half-stud off
 
 
 @pytest.mark.parametrize(

@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 from mepnet import ldraw
-from mepnet.convert import convert
-from mepnet.data import load_manual
+from mepnet.ldraw.convert import convert
+from mepnet.manual import load_manual
 
 SHARED = Path(__file__).resolve().parents[2] / "shared"
 REAL = SHARED / "real" / "models"
@@ -50,11 +50,12 @@ def test_small_model_without_ldraw_library(tmp_path: Path):
         and "--ldraw-dir" in m.source["dropped"][0]["reason"]
     )
     sub = m.submodules[0]
-    assert sub.name == "tower.ldr" and len(sub.build.steps) == 2
+    assert sub.name == "tower.ldr" and len(sub.steps) == 2
+    assert len(m.answers.submodules[0].steps) == 2 and m.answers.shapes[0].name == "tower.ldr"
     # the main model's second step places the submodule on the plate
     step = m.main.steps[1]
     assert step.components[0].component.submodule == 0
-    assert step.views[0].attach == "on_studs"
+    assert m.answers.build(None).steps[1].views[0].attach == "on_studs"
     assert len(m.main.steps[0].image().shape) == 3
 
 
@@ -92,7 +93,7 @@ def test_every_real_model_converts(tmp_path: Path):
         assert all("replaced_by" in s for s in doc["source"]["substitutions"])
         assert all(d["reason"] for d in doc["source"]["dropped"])
         total_steps += report["steps"]
-        ids = m.main.steps[-1].ids()
+        ids = m.answers.main.steps[-1].ids()
         assert (ids >= 0).any()
     assert total_steps > 500
 
@@ -126,7 +127,7 @@ def test_substitution_keeps_the_footprint(tmp_path: Path):
     subs = {s["name"]: s["replaced_by"] for s in doc["source"]["substitutions"]}
     assert subs.get("4070.dat") == "3005"
     # the substitute's body covers the original's body (same world bounds within 2 LDU)
-    from mepnet.convert import Substitutes, library_box
+    from mepnet.ldraw.convert import Substitutes, library_box
 
     finder = Substitutes(str(LDRAW_ROOT))
     ref = next(r for m in f.models for st in m.steps for r in st if r.name == "4070.dat")

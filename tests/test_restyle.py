@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from conftest import generate_manuals
-from mepnet.data import load_manual
+from mepnet.manual import load_manual
 
 
 @pytest.fixture(scope="module")
@@ -38,9 +38,11 @@ def test_restyled_manuals_keep_their_truth_and_change_their_look(manuals: Path, 
         style = m1.source["restyle"]
         assert style["seed"] == 4 and style["lines"] in ("thick", "faint")
         assert {k: v for k, v in m1.source.items() if k != "restyle"} == m0.source
-        for s0, s1 in zip(m0.main.steps, m1.main.steps, strict=True):
-            assert s0.camera == s1.camera
-            assert s0.ids_path.read_bytes() == s1.ids_path.read_bytes()
+        a0, a1 = m0.answers.main.steps, m1.answers.main.steps
+        for s0, s1, t0, t1 in zip(m0.main.steps, m1.main.steps, a0, a1, strict=True):
+            assert s0.camera == s1.camera and s0.components == s1.components
+            assert t0.ids_path.read_bytes() == t1.ids_path.read_bytes()
+            assert t0.views == t1.views and t0.instances_of == t1.instances_of
             i0, i1 = s0.image().astype(int), s1.image().astype(int)
             assert i0.shape == i1.shape
             assert np.abs(i0 - i1).mean() > 1.0  # the look changed
@@ -59,7 +61,7 @@ def test_only_the_page(manuals: Path, tmp_path: Path):
     m0, m1 = load_manual(src), load_manual(tmp_path / src.name)
     assert set(m1.source["restyle"]) == {"seed", "strength", "page"}
     s0, s1 = m0.main.steps[-1], m1.main.steps[-1]
-    ids = s0.ids()
+    ids = m0.answers.main.steps[-1].ids()
     i0, i1 = s0.image(), s1.image()
     assert np.array_equal(i0[ids >= 0], i1[ids >= 0])
     page = i1[ids < 0]

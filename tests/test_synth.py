@@ -1,5 +1,5 @@
 """python -m mepnet.synth and the dataset format: determinism, atomic folders, resume, bad input,
-the typed reader and the step dataset."""
+the typed reader (page and answers) and the training steps of manual folders."""
 
 from __future__ import annotations
 
@@ -14,7 +14,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 from mepnet import _brickgeom as _bg
-from mepnet.data import ManualFormatError, StepDataset, load_manual
+from mepnet.detector.config import ModelConfig
+from mepnet.detector.targets import MAX_INSTANCES
+from mepnet.manual import ManualFormatError, load_manual
+from mepnet.train.data import FolderSteps, manual_steps
 
 SMALL = ["--size", "64"]
 
@@ -60,9 +63,13 @@ def test_rerun_completes_only_what_is_missing(tmp_path: Path):
     out = tmp_path / "d"
     assert synth("--out", str(out), "--manuals", "2", "--seed", "7", *SMALL).returncode == 0
     first = (out / "manual_00000007" / "manual.json").stat().st_mtime_ns
-    # a half-written leftover of a killed run, and a missing manual
-    (out / ".tmp-manual_00000008-abc").mkdir()
-    (out / ".tmp-manual_00000008-abc" / "step_001.png").write_bytes(b"partial")
+    # a half-written leftover of a killed run (temporary names carry the writer's pid), and a
+    # missing manual
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead.wait()
+    leftover = out / f".tmp-manual_00000008-{dead.pid}-abc"
+    leftover.mkdir()
+    (leftover / "step_001.png").write_bytes(b"partial")
     import shutil
 
     shutil.rmtree(out / "manual_00000008")
@@ -158,38 +165,67 @@ def test_typed_reader_and_annotations(manuals: Path):
     m = load_manual(manuals / "manual_00000011")
     assert m.image_size == (128, 128) and m.source["kind"] == "synthetic" and m.source["seed"] == 11
     assert len(m.main.steps) > 3
+    answers = m.answers
+    assert answers is not None and len(answers.main.steps) == len(m.main.steps)
+    comps = answers.components(m)
     seen: set[int] = set()
     for k, step in enumerate(m.main.steps):
-        img, ids = step.image(), step.ids()
+        truth = answers.main.truth(k)
+        img, ids = step.image(), truth.ids()
         assert img.shape == (128, 128, 3) and img.dtype == np.uint8
         assert ids.shape == (128, 128) and ids.dtype == np.int32
-        assert sum(c.count for c in step.components) == len(step.views) <= 10
-        assert len(step.components) <= 5
-        seen.update(step.instance_ids)
+        views = truth.answers.views
+        assert step.n_instances == sum(c.count for c in step.components) == len(views) <= 10
+        # at most 5 component types a step (the callout has one entry per part and colour)
+        assert len({c.component for c in step.components}) <= 5
+        # each callout entry lists as many instances as it counts, of its part and colour
+        assert len(truth.instances_of) == len(step.components)
+        for c, iids in zip(step.components, truth.instances_of, strict=True):
+            assert len(iids) == c.count
+            for i in iids:
+                inst = answers.main.instances[i]
+                assert inst.component == c.component
+                if c.component.part is not None:
+                    assert inst.colour == c.colour
+        assert sorted(i for g in truth.instances_of for i in g) == sorted(
+            truth.answers.instance_ids
+        )
+        assert [i.id for i in truth.placed()] == truth.answers.instance_ids
+        seen.update(truth.answers.instance_ids)
         # the instance map shows exactly the instances added so far
         shown = set(np.unique(ids)) - {-1}
         assert shown <= seen
-        for v in step.views:
+        for v in views:
             mask = ids == v.id
             assert mask.any() and v.visible_fraction >= 0.25
             x0, y0, x1, y1 = v.box
             ys, xs = np.nonzero(mask)
             assert (xs.min(), ys.min(), xs.max() + 1, ys.max() + 1) == (x0, y0, x1, y1)
             assert v.attach in ("on_studs", "from_below", "ground")
+            assert truth.keypoint(v.id) == v.keypoints[0]
         # the poses in the file rebuild a valid base shape step after step
-        base = m.assembly_before(k)
-        assert len(base) == len(seen) - len(step.views)
-    assert seen == set(range(len(m.main.instances)))
+        base = answers.main.assembly_before(k, comps)
+        assert len(base) == len(seen) - len(views)
+    assert seen == set(range(len(answers.main.instances)))
 
 
-def test_step_dataset(manuals: Path):
-    ds = StepDataset(manuals)
-    n_main = sum(len(load_manual(p).main.steps) for p in sorted(manuals.iterdir()))
+def test_training_steps_of_manual_folders(manuals: Path):
+    cfg = ModelConfig.tiny()
+    kw = {"model_config": cfg, "seed": 0, "augment": False}
+    ds = FolderSteps([manuals], **kw, submodules=False)
+    loaded = [load_manual(p) for p in sorted(manuals.iterdir())]
+    n_main = sum(len(m.main.steps) for m in loaded)
     assert len(ds) == n_main
-    item = ds[len(ds) - 1]
-    assert item["image"].shape == (128, 128, 3)
-    with_subs = StepDataset(manuals, submodules=True)
-    assert len(with_subs) >= len(ds)
+    assert manual_steps(loaded[0], False) == [(None, k) for k in range(len(loaded[0].main.steps))]
+    item = ds[(len(ds) - 1, 0)]
+    assert item.tensors["image"].shape == (4, cfg.image_size, cfg.image_size)
+    # the last step adds instances: its targets hold those of the callout entries in the slots
+    last = loaded[-1].main.steps[-1]
+    want = min(sum(c.count for c in last.components[: cfg.k_max]), MAX_INSTANCES)
+    assert want > 0 and int(item.tensors["inst_valid"].sum()) == want
+    with_subs = FolderSteps([manuals], **kw, submodules=True)
+    n_sub = sum(len(b.steps) for m in loaded for b in m.submodules)
+    assert len(with_subs) == n_main + n_sub
 
 
 def test_reader_rejects_bad_folders(tmp_path: Path, manuals: Path):

@@ -13,20 +13,16 @@ from pathlib import Path
 import pytest
 import torch
 from mepnet import _brickgeom as _bg
-from mepnet.checkpoint import (
-    load_checkpoint,
-    load_model,
-    read_safetensors,
-    save_checkpoint,
-    write_safetensors,
-)
-from mepnet.data import StepDataset, write_manual
-from mepnet.model.config import ModelConfig
-from mepnet.model.losses import total_loss
-from mepnet.model.net import build_model
-from mepnet.model.targets import collate, make_sample
-from mepnet.train import main, param_checksum
-from mepnet.train_data import GeneratedSteps, ResumableSampler
+from mepnet.detector.config import ModelConfig
+from mepnet.detector.losses import total_loss
+from mepnet.detector.net import build_model
+from mepnet.detector.targets import collate
+from mepnet.detector.weights import load_model, read_safetensors, write_safetensors
+from mepnet.manual import write_manual
+from mepnet.train.checkpoint import load_checkpoint, save_checkpoint
+from mepnet.train.cli import main
+from mepnet.train.data import FolderSteps, GeneratedSteps, ResumableSampler
+from mepnet.train.distributed import param_checksum
 
 TINY = ModelConfig.tiny()
 # one thread, no workers, no progress bar: deterministic and quiet
@@ -52,7 +48,9 @@ def manuals(tmp_path_factory: pytest.TempPathFactory) -> Path:
     for split, seeds in (("train", (11, 12)), ("val", (13,))):
         for seed in seeds:
             m = _bg.synth_manual(seed, config)
-            write_manual(root / split / f"manual_{seed:08d}", m, {"kind": "synthetic"})
+            write_manual(
+                root / split / f"manual_{seed:08d}", m, {"kind": "synthetic"}, writer="mepnet.synth"
+            )
     return root
 
 
@@ -64,6 +62,12 @@ def train(*args: str, timeout: float = 120) -> subprocess.CompletedProcess[str]:
         timeout=timeout,
         env=ENV,
     )
+
+
+def steps_of(folder: Path) -> FolderSteps:
+    """The main-build steps of the manuals in ``folder`` as training samples, unaugmented
+    (keys ``(index, epoch)``)."""
+    return FolderSteps([folder], model_config=TINY, seed=0, augment=False, submodules=False)
 
 
 def weights(path: Path) -> dict[str, torch.Tensor]:
@@ -84,10 +88,8 @@ def one_error_line(capsys: pytest.CaptureFixture[str], *needles: str) -> str:
 
 def test_overfits_a_fixed_tiny_batch(manuals: Path):
     torch.manual_seed(0)
-    ds = StepDataset(manuals / "train")
-    batch = collate(
-        [make_sample(ds[i]["manual"], ds[i]["build"], ds[i]["step_index"], TINY) for i in (1, 2)]
-    )
+    ds = steps_of(manuals / "train")
+    batch = collate([ds[(i, 0)] for i in (1, 2)])
     model = build_model(TINY).train()
     opt = torch.optim.AdamW(model.parameters(), lr=3e-3)
     losses = []
@@ -103,8 +105,8 @@ def test_overfits_a_fixed_tiny_batch(manuals: Path):
 
 def test_checkpoint_round_trip_is_exact(tmp_path: Path, manuals: Path):
     torch.manual_seed(1)
-    ds = StepDataset(manuals / "train")
-    batch = collate([make_sample(ds[0]["manual"], ds[0]["build"], 0, TINY)])
+    ds = steps_of(manuals / "train")
+    batch = collate([ds[(0, 0)]])
     model = build_model(TINY)
     opt = torch.optim.AdamW(model.parameters(), lr=1e-3, weight_decay=0.01)
     for _ in range(2):

@@ -25,9 +25,9 @@ sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 from bench_geom import NumpyAssembly, replace_section, rot_cells  # noqa: E402
 from conftest import generate_manuals  # noqa: E402
 from mepnet import _brickgeom as _bg  # noqa: E402
-from mepnet.data import iter_manual_dirs, load_manual  # noqa: E402
-from mepnet.eval import _gt_components, _gt_step  # noqa: E402
-from mepnet.predictors import StepContext, _gt_detections  # noqa: E402
+from mepnet.manual import answers_of, iter_manual_dirs, load_manual  # noqa: E402
+from mepnet.stage2 import StepContext  # noqa: E402
+from mepnet.stage2.baselines import truth_detections  # noqa: E402
 
 UNIT = np.array([10.0, 8.0, 10.0])
 
@@ -120,6 +120,41 @@ def numpy_step(base: _bg.Assembly, ctx: StepContext, types) -> list:
     return placed
 
 
+def plain_types(types) -> list[dict]:
+    """Per-type detections (:class:`mepnet.stage2.keypoint.DetectedType`) as plain Python
+    values, for the NumPy reference."""
+    return [
+        {
+            "component": t.component,
+            "count": t.count,
+            "detections": [
+                {
+                    "keypoint": tuple(t.detections.keypoints[j]),
+                    "rotation": t.detections.rotations[j].tolist(),
+                }
+                for j in range(len(t.detections))
+            ],
+        }
+        for t in types
+    ]
+
+
+def binding_types(types, masks: bool = True) -> list[_bg.StepDetections]:
+    """Per-type detections as the binding's ``infer_step`` takes them (``masks=False``: the
+    keypoint matching alone)."""
+    return [
+        _bg.StepDetections(
+            t.component,
+            t.count,
+            np.ascontiguousarray(t.detections.keypoints, np.float64),
+            np.ascontiguousarray(t.detections.scores, np.float32),
+            np.ascontiguousarray(t.detections.rotations, np.float32),
+            np.ascontiguousarray(t.detections.masks, bool) if masks else None,
+        )
+        for t in types
+    ]
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default="docs/benchmarks.md")
@@ -131,42 +166,39 @@ def main(argv: list[str] | None = None) -> int:
         agree = compared = 0
         for md in iter_manual_dirs(d):
             man = load_manual(md)
-            comps = _gt_components(man)
-            for b in [s.build for s in man.submodules] + [man.main]:
+            answers = answers_of(man)
+            comps = answers.components(man)
+            for key, b in man.builds():
                 base = _bg.Assembly()
                 for k, step in enumerate(b.steps):
+                    truth = answers.build(key).truth(k)
                     ctx = StepContext(
-                        step=step, base=base, components=comps, image_size=man.image_size, truth=b
+                        step=step, base=base, components=comps, image_size=man.image_size
                     )
-                    types = _gt_detections(ctx, 0.0, None)
                     w, h = man.image_size
-                    clean = [
-                        {k2: t[k2] for k2 in ("component", "count", "detections")} for t in types
-                    ]
+                    types = truth_detections(ctx, truth, 0.0, None)
+                    with_masks = binding_types(types)
                     t0 = time.perf_counter()
-                    _bg.infer_step(base, ctx.camera, w, h, clean)
+                    _bg.infer_step(base, ctx.camera, w, h, with_masks)
                     dt = time.perf_counter() - t0
                     has_sub = any(sc.component.submodule is not None for sc in step.components)
                     (subm if has_sub else prim).append(dt)
                     if not has_sub and len(base):
-                        nomask = [
-                            {**t, "detections": [{**dd, "mask": None} for dd in t["detections"]]}
-                            for t in clean
-                        ]
+                        nomask, plain = binding_types(types, masks=False), plain_types(types)
                         t0 = time.perf_counter()
                         ours = _bg.infer_step(base, ctx.camera, w, h, nomask)
                         t1 = time.perf_counter()
-                        theirs = numpy_step(base, ctx, nomask)
+                        theirs = numpy_step(base, ctx, plain)
                         t2 = time.perf_counter()
                         ours_match.append(t1 - t0)
                         ref_match.append(t2 - t1)
                         compared += 1
                         agree += int(
-                            sorted((o["type"], o["yaw"], tuple(o["t"])) for o in ours if o["t"])
+                            sorted((o.type, o.yaw, o.t) for o in ours if o.t is not None)
                             == sorted(theirs)
                         )
-                    for ref, yaw, t in _gt_step(b, k):
-                        base.add(comps[ref], yaw, t)
+                    for i in truth.placed():
+                        base.add(comps[i.component], i.yaw, i.t)
     med = lambda x: 1e3 * float(np.median(x))  # noqa: E731
     tot = lambda x: 1e3 * float(np.sum(x))  # noqa: E731
     lines = [
