@@ -13,7 +13,6 @@ import time
 from pathlib import Path
 
 import pytest
-
 from mepnet.files import MANIFEST
 from test_files import dead_pid
 
@@ -88,7 +87,15 @@ def test_infer_ldraw_checks_size_first_and_writes_atomically(tmp_path: Path):
 
 
 def test_json_outputs_are_checked_before_the_work(tmp_path: Path):
-    r = cmd("mepnet.eval", "--data", bundled(), "--predictor", "oracle", "--json", tmp_path / "no" / "m.json")
+    r = cmd(
+        "mepnet.eval",
+        "--data",
+        bundled(),
+        "--predictor",
+        "oracle",
+        "--json",
+        tmp_path / "no" / "m.json",
+    )
     one_line_error(r, "does not exist")
     assert "Pose Acc" not in r.stdout  # refused before evaluating
     r = cmd("mepnet.eval", "--data", bundled(), "--predictor", "oracle", "--json", tmp_path)
@@ -110,11 +117,20 @@ def test_abys_is_the_baselines_name_and_the_oracle_is_named_so():
 
 
 def test_model_settings_are_checked(tmp_path: Path):
-    r = cmd("mepnet.train", "--out", tmp_path / "run", "--steps", "1", "--model", "tiny", "--model-set", "hg_channels=-4")
+    r = cmd(
+        "mepnet.train",
+        "--out",
+        tmp_path / "run",
+        "--steps",
+        "1",
+        "--model",
+        "tiny",
+        "--model-set",
+        "hg_channels=-4",
+    )
     one_line_error(r, "hg_channels")
     # a weights file whose header holds an impossible config: refused when loaded
     import torch
-
     from mepnet.detector.config import ModelConfig
     from mepnet.detector.net import build_model
     from mepnet.detector.weights import save_model
@@ -124,7 +140,15 @@ def test_model_settings_are_checked(tmp_path: Path):
     d["base_grid"] = "big"
     save_model(tmp_path, build_model(cfg).state_dict(), d)
     assert torch  # (torch is what the weights are made of)
-    r = cmd("mepnet.eval", "--data", bundled(), "--predictor", "mepnet", "--weights", tmp_path / "model.safetensors")
+    r = cmd(
+        "mepnet.eval",
+        "--data",
+        bundled(),
+        "--predictor",
+        "mepnet",
+        "--weights",
+        tmp_path / "model.safetensors",
+    )
     one_line_error(r, "model.safetensors", "base_grid")
 
 
@@ -139,7 +163,20 @@ def test_synth_ranges_and_concurrent_runs(tmp_path: Path):
     live.mkdir()
     dead = out / f".tmp-manual_00000008-{dead_pid()}-abc"
     dead.mkdir()
-    r = cmd("mepnet.synth", "--out", out, "--manuals", "1", "--seed", "3", "--size", "32", "--config", config, "--no-progress")
+    r = cmd(
+        "mepnet.synth",
+        "--out",
+        out,
+        "--manuals",
+        "1",
+        "--seed",
+        "3",
+        "--size",
+        "32",
+        "--config",
+        config,
+        "--no-progress",
+    )
     assert r.returncode == 0, r.stderr
     assert live.exists() and not dead.exists()
     doc = json.loads((out / "manual_00000003" / "manual.json").read_text())
@@ -162,7 +199,11 @@ def nested_mpd(path: Path, depth: int) -> Path:
 @pytest.mark.parametrize("depth", [2_000, 20_000])
 def test_deep_nesting_is_a_clear_error(tmp_path: Path, depth: int):
     f = nested_mpd(tmp_path / "deep.mpd", depth)
-    for args in (("mepnet.ldraw", "info", f), ("mepnet.infer", f), ("mepnet.ldraw", "to-manual", f, "--out", tmp_path / "m")):
+    for args in (
+        ("mepnet.ldraw", "info", f),
+        ("mepnet.infer", f),
+        ("mepnet.ldraw", "to-manual", f, "--out", tmp_path / "m"),
+    ):
         r = cmd(*args)
         one_line_error(r, "deep.mpd", "nested")
     assert not (tmp_path / "m").exists()
@@ -176,9 +217,13 @@ def test_shallow_nesting_still_works(tmp_path: Path):
     assert r.returncode == 0, r.stderr
 
 
-def interrupt(args: list[str], ready: str, timeout: float = 300) -> subprocess.CompletedProcess[str]:
+def interrupt(
+    args: list[str], ready: str, timeout: float = 300
+) -> subprocess.CompletedProcess[str]:
     """Start a command, wait until its stderr shows ``ready``, press Ctrl-C."""
-    p = subprocess.Popen([sys.executable, "-m", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    p = subprocess.Popen(
+        [sys.executable, "-m", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE
+    )
     assert p.stderr is not None
     fd = p.stderr.fileno()
     os.set_blocking(fd, False)
@@ -204,7 +249,10 @@ def interrupt(args: list[str], ready: str, timeout: float = 300) -> subprocess.C
 
 
 def test_ctrl_c_in_infer_is_one_line(tmp_path: Path):
-    r = interrupt(["mepnet.infer", str(bundled()), "--out", str(tmp_path / "p"), "--predictor", "synthesis"], "step/s")
+    r = interrupt(
+        ["mepnet.infer", str(bundled()), "--out", str(tmp_path / "p"), "--predictor", "synthesis"],
+        "step/s",
+    )
     assert r.returncode == 130, r.stderr
     assert "Traceback" not in r.stderr
     assert r.stderr.rstrip().splitlines()[-1] == "mepnet.infer: interrupted"
@@ -214,8 +262,21 @@ def test_ctrl_c_in_infer_is_one_line(tmp_path: Path):
 def test_ctrl_c_in_train_is_one_line(tmp_path: Path):
     r = interrupt(
         [
-            "mepnet.train", "--out", str(tmp_path / "run"), "--model", "tiny", "--steps", "1000",
-            "--batch-size", "2", "--workers", "2", "--generate-size", "64", "--samples-per-manual", "2",
+            "mepnet.train",
+            "--out",
+            str(tmp_path / "run"),
+            "--model",
+            "tiny",
+            "--steps",
+            "1000",
+            "--batch-size",
+            "2",
+            "--workers",
+            "2",
+            "--generate-size",
+            "64",
+            "--samples-per-manual",
+            "2",
         ],
         "step/s",
     )

@@ -237,3 +237,25 @@ def test_change_map_survives_large_dark_new_parts():
         new = np.zeros((64, 64), bool)
         new[20:44, 12:52] = True
         assert (changed == new).mean() > 0.99, (changed & ~new).sum()
+
+
+def test_one_slot_per_component_type_whatever_its_colours(tmp_path):
+    """A callout names a part once per colour; the detector sees geometry only, so the entries
+    of one part share a slot and every instance gets its training target."""
+    from conftest import generate_manuals
+    from mepnet.detector.targets import component_slots
+    from mepnet.manual import load_manual
+    from mepnet.train.data import training_sample
+
+    generate_manuals(tmp_path, 1, seed=100, size=64)
+    m = load_manual(tmp_path / "manual_00000100")
+    found = 0
+    for k, st in enumerate(m.main.steps):
+        slots = component_slots(st)
+        assert sorted(e for _, es in slots for e in es) == list(range(len(st.components)))
+        if len(slots) < len(st.components):
+            found += 1
+            s = training_sample(m, (None, k), ModelConfig.tiny(), False, np.random.default_rng(0))
+            assert int(s.tensors["inst_valid"].sum()) == min(st.n_instances, 10)
+            assert int(s.tensors["comp_valid"].sum()) == min(len(slots), 5)
+    assert found, "no step with one part in two colours (the case under test)"

@@ -11,7 +11,6 @@ import sys
 from pathlib import Path
 
 import pytest
-
 from mepnet.errors import OutputError
 from mepnet.files import (
     MANIFEST,

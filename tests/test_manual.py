@@ -14,13 +14,12 @@ from typing import Any
 
 import numpy as np
 import pytest
-from PIL import Image
-
 from mepnet.errors import ManualFormatError
 from mepnet.manual import answers_of, load_manual, manual_json, strip_manual
 from mepnet.manual.images import read_instance_map, read_step_image
 from mepnet.plan import run_manual
 from mepnet.stage2 import make_predictor
+from PIL import Image
 
 
 def bundled() -> Path:
@@ -50,7 +49,9 @@ def v1(tmp_path: Path) -> Path:
     """The bundled example as it was written in version 1 (answers inside the steps)."""
     folder = tmp_path / "v1"
     shutil.copytree(bundled(), folder)
-    shutil.copyfile(Path(__file__).parent / "data" / "example_manual_v1.json", folder / "manual.json")
+    shutil.copyfile(
+        Path(__file__).parent / "data" / "example_manual_v1.json", folder / "manual.json"
+    )
     return folder
 
 
@@ -111,18 +112,62 @@ def test_oracles_say_they_need_the_answers(tmp_path: Path):
 
 BAD: list[tuple[str, Any, str]] = [
     ("top level list", lambda d: d.clear() or d.update({"x": 1}), "schema"),
-    ("missing camera key", lambda d: d["steps"][0]["camera"].pop("scale"), "step 1: 'scale' is missing"),
-    ("scale 0", lambda d: d["steps"][2]["camera"].update(scale=0), "step 3: camera scale must be > 0"),
-    ("NaN", lambda d: d["steps"][1]["camera"].update(elevation=float("nan")), "step 2: camera elevation"),
-    ("submodule out of range", lambda d: d["steps"][0]["components"].append({"submodule": 7, "count": 1}), "submodule 7 is out of range"),
-    ("count -3", lambda d: d["steps"][0]["components"][0].update(count=-3), "count -3 is out of range"),
-    ("unknown part", lambda d: d["steps"][0]["components"][0].update(part="99999"), "part '99999' is not in the library"),
-    ("instance 999", lambda d: d["answers"]["steps"][0]["components"][0].__setitem__(0, 999), "instance id 999 is out of range"),
-    ("t 1e20", lambda d: d["answers"]["instances"][0].update(t=[1e20, 0, 0]), "t must be an integer"),
-    ("t huge int", lambda d: d["answers"]["instances"][0].update(t=[10**20, 0, 0]), "is out of range"),
+    (
+        "missing camera key",
+        lambda d: d["steps"][0]["camera"].pop("scale"),
+        "step 1: 'scale' is missing",
+    ),
+    (
+        "scale 0",
+        lambda d: d["steps"][2]["camera"].update(scale=0),
+        "step 3: camera scale must be > 0",
+    ),
+    (
+        "NaN",
+        lambda d: d["steps"][1]["camera"].update(elevation=float("nan")),
+        "step 2: camera elevation",
+    ),
+    (
+        "submodule out of range",
+        lambda d: d["steps"][0]["components"].append({"submodule": 7, "count": 1}),
+        "submodule 7 is out of range",
+    ),
+    (
+        "count -3",
+        lambda d: d["steps"][0]["components"][0].update(count=-3),
+        "count -3 is out of range",
+    ),
+    (
+        "unknown part",
+        lambda d: d["steps"][0]["components"][0].update(part="99999"),
+        "part '99999' is not in the library",
+    ),
+    (
+        "instance 999",
+        lambda d: d["answers"]["steps"][0]["components"][0].__setitem__(0, 999),
+        "instance id 999 is out of range",
+    ),
+    (
+        "t 1e20",
+        lambda d: d["answers"]["instances"][0].update(t=[1e20, 0, 0]),
+        "t must be an integer",
+    ),
+    (
+        "t huge int",
+        lambda d: d["answers"]["instances"][0].update(t=[10**20, 0, 0]),
+        "is out of range",
+    ),
     ("yaw 7", lambda d: d["answers"]["instances"][0].update(yaw=7), "yaw 7 is out of range"),
-    ("empty keypoints", lambda d: d["answers"]["steps"][0]["instances"][0].update(keypoints=[]), "keypoints are empty"),
-    ("image outside", lambda d: d["steps"][0].update(image="../x.png"), "must be a file name inside"),
+    (
+        "empty keypoints",
+        lambda d: d["answers"]["steps"][0]["instances"][0].update(keypoints=[]),
+        "keypoints are empty",
+    ),
+    (
+        "image outside",
+        lambda d: d["steps"][0].update(image="../x.png"),
+        "must be a file name inside",
+    ),
     ("answers missing a step", lambda d: d["answers"]["steps"].pop(), "answers have"),
 ]
 
@@ -165,7 +210,9 @@ def png_header_only(path: Path, w: int, h: int) -> None:
     """A PNG that claims w x h pixels (and holds almost no data)."""
 
     def chunk(kind: bytes, data: bytes) -> bytes:
-        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+        return (
+            struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+        )
 
     ihdr = struct.pack(">IIBBBBB", w, h, 8, 2, 0, 0, 0)
     path.write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IEND", b""))
@@ -187,14 +234,31 @@ def test_huge_and_truncated_pictures_are_refused_with_their_name(tmp_path: Path)
 
 def test_strip_command(tmp_path: Path):
     r = subprocess.run(
-        [sys.executable, "-m", "mepnet.manual", "strip", str(bundled()), "--out", str(tmp_path / "u"), "--no-cameras"],
+        [
+            sys.executable,
+            "-m",
+            "mepnet.manual",
+            "strip",
+            str(bundled()),
+            "--out",
+            str(tmp_path / "u"),
+            "--no-cameras",
+        ],
         capture_output=True,
         text=True,
     )
     assert r.returncode == 0, r.stderr
     assert "no cameras" in r.stdout
     r = subprocess.run(
-        [sys.executable, "-m", "mepnet.manual", "strip", str(tmp_path / "missing"), "--out", str(tmp_path / "v")],
+        [
+            sys.executable,
+            "-m",
+            "mepnet.manual",
+            "strip",
+            str(tmp_path / "missing"),
+            "--out",
+            str(tmp_path / "v"),
+        ],
         capture_output=True,
         text=True,
     )

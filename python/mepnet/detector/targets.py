@@ -75,6 +75,16 @@ def _gaussian(heat: np.ndarray, cx: float, cy: float, sigma: float) -> None:
     np.maximum(heat, np.exp(-((xs - cx) ** 2 + (ys - cy) ** 2) / (2 * sigma**2)), out=heat)
 
 
+def component_slots(step: Step) -> list[tuple[ComponentRef, list[int]]]:
+    """The detector's component types of a step, in callout order: each distinct component
+    with the callout entries that name it (the same part in two colours is one type to the
+    detector, whose component encoder sees geometry only; stage 2 tells the colours apart)."""
+    slots: dict[ComponentRef, list[int]] = {}
+    for k, c in enumerate(step.components):
+        slots.setdefault(c.component, []).append(k)
+    return list(slots.items())
+
+
 def make_sample(
     step: Step,
     cfg: ModelConfig,
@@ -89,10 +99,11 @@ def make_sample(
     """Network inputs of a page ``step`` (its image, camera and callout) on the shape ``base``,
     and, with ``truth`` (the step's answers: training), the targets. Without ``truth`` (a
     predictor: it never sees the answers) the targets are zeros and there is no augmentation.
-    ``slot_types``: which of the step's callout entries fill the K_max slots (default: the first
-    K_max); a step with more entries takes several samples."""
+    ``slot_types``: which of the step's component types (:func:`component_slots`) fill the K_max
+    slots (default: the first K_max); a step with more types takes several samples."""
     rng = rng or np.random.default_rng(0)
-    types = list(slot_types) if slot_types is not None else list(range(len(step.components)))
+    slots = component_slots(step)
+    types = list(slot_types) if slot_types is not None else list(range(len(slots)))
     types = types[: cfg.k_max]
     rgb = step.image()
     step.camera_object()  # a clear error when the page states no camera
@@ -136,13 +147,14 @@ def make_sample(
         else None
     )
     k_inst = 0
-    for s, entry in enumerate(types):
-        comp = components[step.components[entry].component]
+    for s, slot in enumerate(types):
+        ref, entries = slots[slot]
+        comp = components[ref]
         comp_vox[s, 0] = component_voxels(comp, cfg.comp_grid)
         comp_valid[s] = 1.0
         if truth is None or ids_small is None:
             continue
-        for iid in truth.instances_of[entry]:
+        for iid in (i for e in entries for i in truth.instances_of[e]):
             if k_inst >= MAX_INSTANCES:
                 break
             kp = kps[iid] / stride  # in head cells

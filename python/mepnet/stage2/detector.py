@@ -8,6 +8,7 @@ beliefs) or ``keypoint`` (the paper's keypoint ray search, :mod:`mepnet.stage2.k
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 
 import numpy as np
@@ -16,7 +17,7 @@ import torch
 from mepnet.detector.config import ModelConfig
 from mepnet.detector.decode import decode
 from mepnet.detector.net import MEPNet
-from mepnet.detector.targets import collate, make_sample
+from mepnet.detector.targets import collate, component_slots, make_sample
 from mepnet.errors import ConfigError
 from mepnet.stage2.base import LIFTS, Prediction, Predictor, StepContext
 from mepnet.stage2.keypoint import DetectedType, lift_keypoints
@@ -60,26 +61,27 @@ class MEPNetPredictor(Predictor):
 
     def detect(
         self, ctx: StepContext, change: np.ndarray | None
-    ) -> tuple[list[DetectedType], np.ndarray | None]:
-        """The detector's detections per callout entry (K_max entries per forward pass; a step
-        with more takes several), and the change map used (the network input's when none was
-        given)."""
+    ) -> tuple[list[tuple[list[int], DetectedType]], np.ndarray | None]:
+        """The detector's detections per component type (:func:`component_slots`: the callout
+        entries of one component share a slot; K_max types per forward pass, a step with more
+        takes several), each with the callout entries it covers, and the change map used (the
+        network input's when none was given)."""
         w, h = ctx.image_size
-        types: list[DetectedType] = []
-        n_types = len(ctx.step.components)
-        for first in range(0, n_types, self.cfg.k_max):
-            chunk = list(range(first, min(first + self.cfg.k_max, n_types)))
+        slots = component_slots(ctx.step)
+        types: list[tuple[list[int], DetectedType]] = []
+        for first in range(0, len(slots), self.cfg.k_max):
+            chunk = list(range(first, min(first + self.cfg.k_max, len(slots))))
             sample = make_sample(
                 ctx.step, self.cfg, base=ctx.base, components=ctx.components, slot_types=chunk
             )
             out = self.model(collate([sample]))
             if change is None and self.use_change:
                 change = sample.tensors["state_maps"][9].numpy()
-            counts = [ctx.step.components[i].count for i in chunk]
+            counts = [sum(ctx.step.components[e].count for e in slots[i][1]) for i in chunk]
             dets = decode(out, counts, self.cfg, (w, h), change)
             types += [
-                DetectedType(e, ctx.components[ctx.step.components[e].component], c, d)
-                for e, c, d in zip(chunk, counts, dets, strict=True)
+                (slots[i][1], DetectedType(slots[i][1][0], ctx.components[slots[i][0]], c, d))
+                for i, c, d in zip(chunk, counts, dets, strict=True)
             ]
         return types, change
 
@@ -96,21 +98,22 @@ class MEPNetPredictor(Predictor):
             change, tone = step_change(ctx, picture) if self.use_change and w == h else (None, None)
             types, change = self.detect(ctx, change)
             if self.lift == "keypoint":
-                return lift_keypoints(ctx, types)
+                return _share_out(ctx, lift_keypoints(ctx, [t for _, t in types]), types)
             return synthesize(
                 ctx,
                 [
                     SynthesisType(
-                        entry=t.entry,
+                        entry=e,
                         component=t.component,
-                        count=t.count,
+                        count=ctx.step.components[e].count,
                         mask=t.detections.type_mask
                         if t.detections.type_mask is not None
                         else np.zeros((h, w), bool),
                         belief=t.detections.type_prob,
                         heat=t.detections.type_heat,
                     )
-                    for t in types
+                    for entries, t in types
+                    for e in entries
                 ],
                 time_limit_s=self.time_limit_s,
                 picture=picture,
@@ -118,3 +121,18 @@ class MEPNetPredictor(Predictor):
             )
         finally:
             self.model.train(was_training)
+
+
+def _share_out(
+    ctx: StepContext, preds: list[Prediction], types: list[tuple[list[int], DetectedType]]
+) -> list[Prediction]:
+    """The keypoint lift's predictions of a component type handed to the callout entries that
+    share it, as many as each entry's count, in order (the lift does not see colours)."""
+    slots = {t.entry: entries for entries, t in types}
+    left = {e: ctx.step.components[e].count for entries, _ in types for e in entries}
+    out = []
+    for p in preds:
+        entry = next((e for e in slots[p.entry] if left[e] > 0), p.entry)
+        left[entry] = left.get(entry, 0) - 1
+        out.append(dataclasses.replace(p, entry=entry))
+    return out
