@@ -93,3 +93,36 @@ def test_a_folder_without_manuals_exits_2(tmp_path: Path):
     (tmp_path / "empty").mkdir()
     r = restyle("--data", str(tmp_path / "empty"), "--out", str(tmp_path / "o"))
     assert r.returncode == 2 and "no manual folders" in r.stderr
+
+
+def test_restyle_runs_on_a_manual_without_answers(manuals: Path, tmp_path: Path):
+    from mepnet.manual import strip_manual
+
+    src = sorted(manuals.iterdir())[0]
+    strip_manual(src, tmp_path / "data" / src.name)
+    r = restyle(
+        "--data", str(tmp_path / "data"), "--out", str(tmp_path / "out"), "--only", "lines,page"
+    )
+    assert r.returncode == 0, r.stderr
+    m0, m1 = load_manual(tmp_path / "data" / src.name), load_manual(tmp_path / "out" / src.name)
+    assert m1.answers is None
+    changed = sum(
+        int((a.image() != b.image()).any())
+        for a, b in zip(m0.all_steps(), m1.all_steps(), strict=True)
+    )
+    assert changed == len(m0.all_steps())  # every picture redrawn
+
+
+def test_restyle_refuses_a_huge_picture_and_leaves_nothing(manuals: Path, tmp_path: Path):
+    import shutil
+
+    from test_manual import png_header_only
+
+    src = sorted(manuals.iterdir())[0]
+    data = tmp_path / "data"
+    shutil.copytree(src, data / src.name)
+    png_header_only(data / src.name / "step_002.png", 20000, 20000)
+    r = restyle("--data", str(data), "--out", str(tmp_path / "out"))
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    assert "step_002.png" in r.stderr and r.stderr.count("\n") == 1
+    assert list((tmp_path / "out").iterdir()) == []  # no .tmp- folder left

@@ -25,7 +25,7 @@ import numpy as np
 from mepnet.cli import run
 from mepnet.errors import ConfigError
 from mepnet.files import atomic_folder
-from mepnet.manual import answers_of, iter_manual_dirs, load_manual
+from mepnet.manual import iter_manual_dirs, load_manual
 
 #: What a style may change (``--only`` picks a subset).
 FACTORS = ("gamma", "sat", "page", "lines", "blur")
@@ -66,36 +66,52 @@ def restyle_image(
     return np.clip(img, 0, 255).round().astype(np.uint8)
 
 
+def regions_of(rgb: np.ndarray) -> np.ndarray:
+    """A stand-in for an instance map when the manual has no answers, (H, W) int32: the page
+    (near-white pixels) is -1, everything else labelled by its colour quantised to 8 levels per
+    channel, so that part edges and outlines fall where labels change."""
+    q = (rgb.astype(np.int32) // 32).astype(np.int32)
+    labels = (q[..., 0] * 64 + q[..., 1] * 8 + q[..., 2]).astype(np.int32)
+    labels[(rgb >= 245).all(axis=2)] = -1
+    return labels
+
+
 def restyle_manual(src: Path, out: Path, only: tuple[str, ...], strength: float, seed: int) -> int:
     """Write ``out`` (must not exist) as ``src`` redrawn; returns the number of images. Lines
-    are redrawn along the instance map's edges, so the manual needs its answers."""
+    are redrawn along the instance map's edges, or, for a manual without answers (as users have
+    it), along the edges of the picture's own colour regions (:func:`regions_of`)."""
     from PIL import Image
 
     manual = load_manual(src)  # checks the folder and lists every step image
-    answers = answers_of(manual)
     rng = np.random.default_rng([seed, zlib.crc32(src.name.encode())])
     style = {k: v for k, v in draw_style(rng, strength).items() if k in only}
-    steps = [
-        (step, answers.build(key).steps[k])
-        for key, build in manual.builds()
-        for k, step in enumerate(build.steps)
-    ]
     with atomic_folder(out, "mepnet.restyle", replace=False) as tmp:
         for p in src.iterdir():
             if p.is_file() and not p.name.startswith("."):
                 shutil.copyfile(p, tmp / p.name)
-        for step, ans in steps:
-            rel = step.image_path.relative_to(src)
-            (tmp / rel).parent.mkdir(parents=True, exist_ok=True)
-            if ans.ids_path is not None and ans.ids_path.parent != src:
-                (tmp / ans.ids_path.relative_to(src)).parent.mkdir(parents=True, exist_ok=True)
-                shutil.copyfile(ans.ids_path, tmp / ans.ids_path.relative_to(src))
-            img_rng = np.random.default_rng([seed, zlib.crc32(str(rel).encode())])
-            Image.fromarray(restyle_image(step.image(), ans.ids(), style, img_rng)).save(tmp / rel)
+        steps = 0
+        for key, build in manual.builds():
+            for k, step in enumerate(build.steps):
+                rel = step.image_path.relative_to(src)
+                (tmp / rel).parent.mkdir(parents=True, exist_ok=True)
+                rgb = step.image()
+                if manual.answers is not None and manual.answers.build(key).steps[k].ids_path:
+                    ans = manual.answers.build(key).steps[k]
+                    assert ans.ids_path is not None
+                    target = tmp / ans.ids_path.relative_to(src)
+                    if not target.exists():
+                        target.parent.mkdir(parents=True, exist_ok=True)
+                        shutil.copyfile(ans.ids_path, target)
+                    ids = ans.ids()
+                else:
+                    ids = regions_of(rgb)
+                img_rng = np.random.default_rng([seed, zlib.crc32(str(rel).encode())])
+                Image.fromarray(restyle_image(rgb, ids, style, img_rng)).save(tmp / rel)
+                steps += 1
         doc = json.loads((tmp / "manual.json").read_text())
         doc.setdefault("source", {})["restyle"] = {"seed": seed, "strength": strength, **style}
         (tmp / "manual.json").write_text(json.dumps(doc, indent=1) + "\n")
-    return len(steps)
+    return steps
 
 
 def build_parser() -> argparse.ArgumentParser:
