@@ -145,7 +145,7 @@ def load_part_mesh(
     root: str, id: str
 ) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.uint32], int]: ...
 
-# Synthetic manuals (wrapped by mepnet.synth / mepnet.data / mepnet.convert)
+# Synthetic manuals (wrapped by mepnet.synth / mepnet.manual / mepnet.ldraw.convert)
 def synth_manual(
     seed: int, config: dict[str, Any] | None = None, ldraw_dir: str | None = None
 ) -> dict[str, Any]: ...

@@ -53,7 +53,7 @@ class StateEncoder(nn.Module):
 
     The 3D features of the first occupied voxel each pixel's ray hits are gathered into the
     image: the per-pixel voxel index comes from rasterizing the base shape with the step's camera
-    (:func:`mepnet.model.targets.state_projection`, brickgeom's renderer), so the transform is
+    (:func:`mepnet.state.state_projection`, brickgeom's renderer), so the transform is
     exact and the gather passes gradients to every voxel feature it reads."""
 
     def __init__(self, *, channels: int):
