@@ -58,7 +58,7 @@ def test_first_hit_projection_lands_on_the_voxels_the_rays_hit():
     }
     n = 128
     index, maps = state_projection(asm, cdict, n, cfg.base_grid)
-    silhouette = _bg.render(asm, cam, n, n)["ids"] >= 0
+    silhouette = _bg.render(asm, cam, n, n).ids >= 0
     assert np.array_equal(maps[0] > 0, silhouette)
     # the rendered state: white paper around the shape, the parts' colours on it
     assert np.allclose(maps[6:9][:, ~silhouette], 1.0)

@@ -280,7 +280,38 @@ def test_camera_and_render_bad_input():
             _bg.render(asm, cam, w, h)
     # an empty scene renders an empty (white) image, not an error
     empty = _bg.render(_bg.Assembly(), cam, 8, 8)
-    assert (empty["ids"] == -1).all() and (empty["rgb"] == 255).all()
+    assert (empty.ids == -1).all() and (empty.rgb == 255).all()
+
+
+def test_render_returns_a_frozen_rendering():
+    asm = _bg.Assembly()
+    asm.add(_bg.Component.primitive("3001"), 0, (0, 3, 0), 4)
+    asm.add(_bg.Component.primitive("3003"), 0, (0, 6, 0), 1)
+    cam = _bg.Camera(30.0, 225.0).fitted(np.array([[-40.0, 0.0, -20.0], [40.0, 48.0, 20.0]]), 0.9)
+    r = _bg.render(asm, cam, 48, 32, supersample=3)
+    assert type(r) is _bg.Rendering and repr(r) == "Rendering(width=48, height=32, instance_ids=2)"
+    assert (r.width, r.height) == (48, 32)
+    expected = {
+        "rgb": (np.uint8, (32, 48, 3)),
+        "depth": (np.float32, (32, 48)),
+        "ids": (np.int32, (32, 48)),
+        "visible_fraction": (np.float32, (2,)),
+        "visible_pixels": (np.uint64, (2,)),
+        "total_pixels": (np.uint64, (2,)),
+    }
+    for name, (dtype, shape) in expected.items():
+        a = getattr(r, name)
+        assert a.dtype == dtype and a.shape == shape, name
+        # made once: every access is the same array, and it cannot be written through
+        assert getattr(r, name) is a and not a.flags.writeable, name
+        with pytest.raises(AttributeError):
+            setattr(r, name, a)
+    with pytest.raises(AttributeError):
+        r.width = 1  # type: ignore[misc]
+    with pytest.raises(ValueError, match="read-only"):
+        r.ids[0, 0] = 5
+    assert set(np.unique(r.ids)) == {-1, 0, 1}
+    assert ((r.visible_fraction > 0) & (r.visible_fraction <= 1)).all()
 
 
 def test_projection_of_known_points():
@@ -304,15 +335,15 @@ def test_real_part_geometry_renders_like_the_builtin_meshes(tmp_path: Path):
     ours = _bg.render(asm, cam, 128, 128)
     real = _bg.render(asm, cam, 128, 128, ldraw_dir=str(LDRAW_ROOT))
     for i in range(len(asm)):
-        a, b = ours["ids"] == i, real["ids"] == i
+        a, b = ours.ids == i, real.ids == i
         iou = (a & b).sum() / max((a | b).sum(), 1)
         assert iou > 0.85, f"instance {i}: IoU {iou:.2f}"
     # the real meshes are used: the grille brick's grooves exist only in the LDraw geometry
     grille = _bg.Assembly()
     grille.add(_bg.Component.primitive("2877"), 0, (0, 3, 0), 15)
     close = _bg.Camera(60.0, 225.0).fitted(np.array([[-20.0, 0.0, -10.0], [20.0, 24.0, 10.0]]), 0.9)
-    plain = _bg.render(grille, close, 128, 128)["rgb"]
-    grooved = _bg.render(grille, close, 128, 128, ldraw_dir=str(LDRAW_ROOT))["rgb"]
+    plain = _bg.render(grille, close, 128, 128).rgb
+    grooved = _bg.render(grille, close, 128, 128, ldraw_dir=str(LDRAW_ROOT)).rgb
     assert (np.abs(plain.astype(int) - grooved).sum(axis=2) > 30).sum() > 50
     # and the generator renders with them from the command line
     r = synth(

@@ -127,7 +127,7 @@ def _render_steps(checks: list[dict[str, Any]], out: Path, size: int) -> int:
             if len(asm) == 0:
                 continue
             r = _bg.render(asm, camera, size, size, supersample=3)
-            Image.fromarray(r["rgb"]).save(out / f"{safe}_step_{s + 1:03d}.png")
+            Image.fromarray(r.rgb).save(out / f"{safe}_step_{s + 1:03d}.png")
             written += 1
         if m != 0 and checks[m]["placeable"]:
             placed = [

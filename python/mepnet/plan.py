@@ -303,7 +303,7 @@ def overlay(
     out = image.copy()
     if len(asm) == 0:
         return out
-    mask = _bg.render(asm, camera, w, h, line_px=0)["ids"] >= 0
+    mask = _bg.render(asm, camera, w, h, line_px=0).ids >= 0
     tint = np.array([255, 0, 255], dtype=np.float32)
     out[mask] = (0.6 * out[mask] + 0.4 * tint).astype(np.uint8)
     edge = mask & ~(

@@ -50,7 +50,7 @@ def state_render(
     if len(asm) == 0:
         return np.ones((3, size, size), np.float32), np.zeros((size, size), bool)
     r = _bg.render(asm, make_camera(camera), size, size)
-    return r["rgb"].transpose(2, 0, 1).astype(np.float32) / 255.0, outline_of(r["ids"])
+    return r.rgb.transpose(2, 0, 1).astype(np.float32) / 255.0, outline_of(r.ids)
 
 
 def state_projection(
@@ -75,8 +75,8 @@ def state_projection(
         return index, maps
     cam = make_camera(camera)
     r = _bg.render(asm, cam, size, size)
-    maps[6:9] = r["rgb"].transpose(2, 0, 1) / 255.0  # as state_render, from the same render
-    depth, ids = r["depth"], r["ids"]
+    maps[6:9] = r.rgb.transpose(2, 0, 1) / 255.0  # as state_render, from the same render
+    depth, ids = r.depth, r.ids
     hit = np.isfinite(depth)
     if not hit.any():
         return index, maps

@@ -185,7 +185,7 @@ def run(sizes: list[int], images: list[int], repeat: int, sample_rays: int) -> l
             }
             r = calls["ours_ss1"]()
             # ids and depth come from the centre sample for both ss 1 and 3
-            ref_ids, ref_depth = r["ids"], r["depth"]
+            ref_ids, ref_depth = r.ids, r.depth
             if HAVE_EMBREE:
                 # Whole images, checked before timing.
                 calls["embree"] = partial(trimesh_render, embree, face_ids, cam, size, m_em)

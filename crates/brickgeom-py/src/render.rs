@@ -6,13 +6,14 @@ use std::sync::{Arc, Mutex, OnceLock};
 
 use brickgeom::camera::Camera;
 use brickgeom::colours::ColourTable;
-use brickgeom::raster::RenderOptions;
+use brickgeom::raster::{RenderOptions, Rendered};
 use brickgeom::scene::{render_assembly, MeshSource};
 use ndarray::{Array1, Array2, Array3};
-use numpy::{IntoPyArray, PyArray1, PyArray2, PyReadonlyArray2};
+use numpy::{
+    IntoPyArray, PyArray, PyArray1, PyArray2, PyArray3, PyReadonlyArray2, PyUntypedArrayMethods,
+};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
-use pyo3::types::PyDict;
 
 use crate::errors::{detach_core, IntoPyResult};
 use crate::geom::PyAssembly;
@@ -173,14 +174,111 @@ fn colour_rgb(code: i32, ldraw_dir: Option<PathBuf>) -> PyResult<(u8, u8, u8)> {
     Ok((c[0], c[1], c[2]))
 }
 
-/// Render an assembly. Returns a dict: `rgb` (H, W, 3) uint8, `depth` (H, W) float32 (inf on
-/// the background), `ids` (H, W) int32 instance ids (-1 background), `visible_fraction` and
-/// `visible_pixels` per instance id (supersampled counts).
+/// The result of `render` (a frozen wrapper over the core's `Rendered`): `rgb` (H, W, 3) uint8,
+/// `depth` (H, W) float32 (inf on the background), `ids` (H, W) int32 instance ids (-1
+/// background), and per instance id (0 to the largest id drawn) `visible_fraction` float32,
+/// `visible_pixels` and `total_pixels` uint64 (supersampled counts). The arrays are made once, when the rendering is,
+/// and are read-only: every access returns the same array, so a caller that wants to draw on one
+/// copies it first.
+#[pyclass(name = "Rendering", module = "mepnet._brickgeom", frozen)]
+pub struct PyRendering {
+    width: u32,
+    height: u32,
+    rgb: Py<PyArray3<u8>>,
+    depth: Py<PyArray2<f32>>,
+    ids: Py<PyArray2<i32>>,
+    visible_fraction: Py<PyArray1<f32>>,
+    visible_pixels: Py<PyArray1<u64>>,
+    total_pixels: Py<PyArray1<u64>>,
+}
+
+/// A numpy array that Python code cannot write to (the owner is frozen).
+fn read_only<'py, T, D>(array: Bound<'py, PyArray<T, D>>) -> PyResult<Py<PyArray<T, D>>> {
+    array.call_method1("setflags", (false,))?;
+    Ok(array.unbind())
+}
+
+impl PyRendering {
+    fn new(py: Python<'_>, r: Rendered) -> PyResult<Self> {
+        let (h, w) = (r.height as usize, r.width as usize);
+        let visible_fraction = Array1::from(r.visible_fraction());
+        // The core returns `height * width` pixels (times 3 for rgb), so the shapes fit.
+        let shape_error = |e: ndarray::ShapeError| PyValueError::new_err(e.to_string());
+        Ok(PyRendering {
+            width: r.width,
+            height: r.height,
+            rgb: read_only(
+                Array3::from_shape_vec((h, w, 3), r.rgb)
+                    .map_err(shape_error)?
+                    .into_pyarray(py),
+            )?,
+            depth: read_only(
+                Array2::from_shape_vec((h, w), r.depth)
+                    .map_err(shape_error)?
+                    .into_pyarray(py),
+            )?,
+            ids: read_only(
+                Array2::from_shape_vec((h, w), r.ids)
+                    .map_err(shape_error)?
+                    .into_pyarray(py),
+            )?,
+            visible_fraction: read_only(visible_fraction.into_pyarray(py))?,
+            visible_pixels: read_only(Array1::from(r.visible_samples).into_pyarray(py))?,
+            total_pixels: read_only(Array1::from(r.total_samples).into_pyarray(py))?,
+        })
+    }
+}
+
+#[pymethods]
+impl PyRendering {
+    #[getter]
+    fn width(&self) -> u32 {
+        self.width
+    }
+    #[getter]
+    fn height(&self) -> u32 {
+        self.height
+    }
+    #[getter]
+    fn rgb<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray3<u8>> {
+        self.rgb.bind(py).clone()
+    }
+    #[getter]
+    fn depth<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f32>> {
+        self.depth.bind(py).clone()
+    }
+    #[getter]
+    fn ids<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<i32>> {
+        self.ids.bind(py).clone()
+    }
+    #[getter]
+    fn visible_fraction<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f32>> {
+        self.visible_fraction.bind(py).clone()
+    }
+    #[getter]
+    fn visible_pixels<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<u64>> {
+        self.visible_pixels.bind(py).clone()
+    }
+    #[getter]
+    fn total_pixels<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<u64>> {
+        self.total_pixels.bind(py).clone()
+    }
+    fn __repr__(&self, py: Python<'_>) -> String {
+        format!(
+            "Rendering(width={}, height={}, instance_ids={})",
+            self.width,
+            self.height,
+            PyUntypedArrayMethods::len(self.visible_fraction.bind(py))
+        )
+    }
+}
+
+/// Render an assembly (see `Rendering` for what comes back).
 #[pyfunction]
 #[pyo3(signature = (assembly, camera, width, height, supersample=1, line_px=None, ldraw_dir=None))]
 #[allow(clippy::too_many_arguments)]
-fn render<'py>(
-    py: Python<'py>,
+fn render(
+    py: Python<'_>,
     assembly: &PyAssembly,
     camera: &PyCamera,
     width: u32,
@@ -188,7 +286,7 @@ fn render<'py>(
     supersample: u32,
     line_px: Option<f32>,
     ldraw_dir: Option<PathBuf>,
-) -> PyResult<Bound<'py, PyDict>> {
+) -> PyResult<PyRendering> {
     let mut opts = RenderOptions::new(width, height);
     opts.supersample = supersample;
     if let Some(l) = line_px {
@@ -199,41 +297,12 @@ fn render<'py>(
     let asm = &assembly.inner;
     let cam = camera.inner;
     let r = detach_core(py, || render_assembly(asm, &cam, &opts, &colours, &src))?;
-    let (h, w) = (r.height as usize, r.width as usize);
-    let frac = r.visible_fraction();
-    let d = PyDict::new(py);
-    d.set_item(
-        "rgb",
-        Array3::from_shape_vec((h, w, 3), r.rgb)
-            .expect("h*w*3")
-            .into_pyarray(py),
-    )?;
-    d.set_item(
-        "depth",
-        Array2::from_shape_vec((h, w), r.depth)
-            .expect("h*w")
-            .into_pyarray(py),
-    )?;
-    d.set_item(
-        "ids",
-        Array2::from_shape_vec((h, w), r.ids)
-            .expect("h*w")
-            .into_pyarray(py),
-    )?;
-    d.set_item("visible_fraction", Array1::from(frac).into_pyarray(py))?;
-    d.set_item(
-        "visible_pixels",
-        Array1::from(r.visible_samples).into_pyarray(py),
-    )?;
-    d.set_item(
-        "total_pixels",
-        Array1::from(r.total_samples).into_pyarray(py),
-    )?;
-    Ok(d)
+    PyRendering::new(py, r)
 }
 
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<PyCamera>()?;
+    m.add_class::<PyRendering>()?;
     m.add_function(wrap_pyfunction!(colour_rgb, m)?)?;
     m.add_function(wrap_pyfunction!(render, m)?)?;
     Ok(())

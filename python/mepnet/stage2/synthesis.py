@@ -158,7 +158,7 @@ def synthesize(
                 trial = asm.copy()
                 tid = trial.add(t.component, yaw, tr, colours[i])
                 r = _bg.render(trial, cam, w, h)
-                vis = r["ids"] == tid
+                vis = r.ids == tid
                 if vis.any() and TYPE_WEIGHT and t.belief is not None:
                     score += TYPE_WEIGHT * float(t.belief[vis].mean())
                 if KEYPOINT_WEIGHT and t.heat is not None:
@@ -166,7 +166,7 @@ def synthesize(
                     if 0 <= x < w and 0 <= y < h:
                         score += KEYPOINT_WEIGHT * float(t.heat[int(y), int(x)])
                 if vis.any() and picture is not None:
-                    rendered = r["rgb"][vis] / 255.0 * tone[0] + tone[1]
+                    rendered = r.rgb[vis] / 255.0 * tone[0] + tone[1]
                     diff = np.abs(picture[vis] - rendered).max(axis=1)
                     score -= COLOUR_WEIGHT * float(diff.mean())
                 if best is None or score > best[0]:
@@ -182,7 +182,7 @@ def synthesize(
             break
         _, i, (yaw, tr), extra = best
         new_id, attach = asm.add_checked(types[i].component, yaw, tr)
-        unexplained &= _bg.render(asm, cam, w, h, line_px=0.0)["ids"] != new_id
+        unexplained &= _bg.render(asm, cam, w, h, line_px=0.0).ids != new_id
         left[i] -= 1
         entry = types[i].entry
         ref = ctx.step.components[entry].component
