@@ -283,3 +283,24 @@ def test_ctrl_c_in_train_is_one_line(tmp_path: Path):
     assert r.returncode == 130, r.stderr
     assert "Traceback" not in r.stderr
     assert r.stderr.rstrip().splitlines()[-1] == "mepnet.train: interrupted"
+
+
+def test_train_writes_only_into_a_folder_of_its_own(tmp_path: Path):
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "model.json").write_text("my own notes")
+    r = cmd(
+        "mepnet.train",
+        "--out",
+        out,
+        "--model",
+        "tiny",
+        "--steps",
+        "1",
+        "--batch-size",
+        "1",
+        "--workers",
+        "0",
+    )
+    one_line_error(r, str(out), "did not write")
+    assert (out / "model.json").read_text() == "my own notes"

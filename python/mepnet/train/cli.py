@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from dataclasses import fields, replace
 from pathlib import Path
@@ -25,7 +26,8 @@ from typing import Any
 
 from mepnet.cli import run as run_cli
 from mepnet.detector.config import ModelConfig
-from mepnet.errors import CheckpointError, ConfigError
+from mepnet.errors import CheckpointError, ConfigError, OutputError
+from mepnet.files import MANIFEST, atomic_write_json
 from mepnet.stage2.base import LIFTS
 from mepnet.train.checkpoint import load_checkpoint
 from mepnet.train.config import (
@@ -38,6 +40,18 @@ from mepnet.train.config import (
     validate,
 )
 from mepnet.train.loop import run
+
+#: What a training run writes into its --out folder (rank 0).
+RUN_FILES = (
+    "config.json",
+    "checkpoint.safetensors",
+    "checkpoint.json",
+    "model.safetensors",
+    "model.json",
+    "metrics.csv",
+    "metrics.json",
+    "curves.png",
+)
 
 CHOICES = {
     "schedule": ("cosine", "plateau"),
@@ -145,7 +159,14 @@ def _main(args: argparse.Namespace) -> int:
     out = Path(cfg.out)
     if out.exists() and not out.is_dir():
         raise ConfigError(f"{out}: exists and is not a folder (--out)")
+    # a run writes only into a folder of its own: new, empty, or an earlier run's
+    if out.is_dir() and any(out.iterdir()) and not (out / MANIFEST).is_file():
+        raise OutputError(
+            f"{out}: holds files mepnet.train did not write (choose a new --out; nothing was changed)"
+        )
     out.mkdir(parents=True, exist_ok=True)
+    if os.environ.get("RANK", "0") == "0" and not (out / MANIFEST).is_file():
+        atomic_write_json(out / MANIFEST, {"writer": "mepnet.train", "files": list(RUN_FILES)})
     if ckpt is None and args.resume:
         print(f"mepnet.train: no checkpoint in {out}; starting from step 0", file=sys.stderr)
     return run(
