@@ -304,3 +304,24 @@ def test_train_writes_only_into_a_folder_of_its_own(tmp_path: Path):
     )
     one_line_error(r, str(out), "did not write")
     assert (out / "model.json").read_text() == "my own notes"
+
+
+def test_synth_caps_worker_processes(tmp_path: Path):
+    """--workers 1000 must not start a thousand interpreters (memory): a few per CPU at most."""
+    r = cmd(
+        "mepnet.synth",
+        "--out",
+        tmp_path / "o",
+        "--manuals",
+        "12",
+        "--size",
+        "16",
+        "--workers",
+        "1000",
+        "--no-progress",
+    )
+    assert r.returncode == 0, r.stderr
+    cap = 4 * (os.cpu_count() or 1)
+    if cap < 12:
+        assert f"using {cap} worker processes, not 1000" in r.stderr
+    assert len(list((tmp_path / "o").glob("manual_*"))) == 12

@@ -27,6 +27,8 @@ from mepnet.geom import BrickGeomError
 from mepnet.manual.io import write_manual
 
 MAX_SIZE = 2048
+#: Worker processes per CPU at most (``--workers`` above it is capped, with a note).
+MAX_WORKERS_PER_CPU = 4
 
 
 def read_generator_settings(path: Path) -> dict[str, Any]:
@@ -154,8 +156,17 @@ def _main(args: argparse.Namespace) -> int:
     steps = 0
     t0 = time.perf_counter()
     jobs = [(s, str(args.out), config, args.ldraw_dir) for s in seeds]
+    # no more worker processes than manuals to write, nor than a few per core: each is an
+    # interpreter with the extension (tens of MB), and a thousand would exhaust the memory
+    workers = min(args.workers, max(len(jobs), 1), MAX_WORKERS_PER_CPU * (os.cpu_count() or 1))
+    if workers < args.workers and len(jobs) > workers:
+        print(
+            f"mepnet.synth: using {workers} worker processes, not {args.workers} "
+            f"({MAX_WORKERS_PER_CPU} per CPU at most)",
+            file=sys.stderr,
+        )
     try:
-        if args.workers == 1 or len(seeds) <= 1:
+        if workers == 1:
             for job in jobs:
                 steps += _job(job)[1]
                 bar.update(1)
@@ -163,7 +174,7 @@ def _main(args: argparse.Namespace) -> int:
             # spawn, not fork: the parent has already started the extension's thread pool
             ctx = multiprocessing.get_context("spawn")
             with workers_ignore_interrupts():
-                pool = ctx.Pool(args.workers, initializer=_worker_init)
+                pool = ctx.Pool(workers, initializer=_worker_init)
             with pool:
                 for _, n in pool.imap_unordered(_job, jobs):
                     steps += n

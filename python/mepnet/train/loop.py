@@ -37,6 +37,9 @@ from mepnet.train.config import TrainConfig
 from mepnet.train.data import FolderSteps, GeneratedSteps, ResumableSampler, worker_init
 from mepnet.train.log import MetricsLog
 
+#: Data worker processes per CPU at most (``--workers`` above it is capped, with a note).
+MAX_WORKERS_PER_CPU = 4
+
 #: A loaded checkpoint: model state, optimizer state, JSON document.
 Checkpoint = tuple[dict[str, torch.Tensor], dict[str, Any], dict[str, Any]]
 
@@ -102,8 +105,17 @@ def make_data(
 ) -> Data:
     """Folder data (a resumable sampler over the steps) or manuals generated on the fly."""
     cuda = d.device.type == "cuda"
-    loader_kw: dict[str, Any] = {"num_workers": cfg.workers, "pin_memory": cuda}
-    if cfg.workers > 0:
+    # a few worker processes per core at most: each is an interpreter with torch (hundreds of
+    # MB); batches do not depend on the number of workers, so capping changes nothing else
+    workers = min(cfg.workers, MAX_WORKERS_PER_CPU * (os.cpu_count() or 1))
+    if workers < cfg.workers and d.main:
+        print(
+            f"mepnet.train: using {workers} data workers, not {cfg.workers} "
+            f"({MAX_WORKERS_PER_CPU} per CPU at most)",
+            file=sys.stderr,
+        )
+    loader_kw: dict[str, Any] = {"num_workers": workers, "pin_memory": cuda}
+    if workers > 0:
         # spawn, not fork: validation runs the extension's thread pool in this process, and a
         # pool started before a fork is unusable in the child; workers persist across epochs
         loader_kw.update(
