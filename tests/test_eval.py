@@ -263,3 +263,30 @@ def test_synthesis_holds_up_on_a_manual_drawn_in_another_style(manuals: Path, tm
     m = evaluate(tmp_path / one.name, make_predictor("synthesis"), cd_points=2000, progress=False)
     assert m["n_steps"] > 5
     assert m["component_acc"] > 0.8, m
+
+
+def test_autoregressive_metrics_count_what_a_user_gets():
+    """eval --autoregressive reports the plan built on its own predictions and whether the
+    final model is exactly right; one misplaced part makes both drop."""
+    from mepnet.infer import bundled_manual
+    from mepnet.manual import load_manual
+    from mepnet.plan import accuracy, built_exactly, run_manual
+
+    r = evaluate(
+        bundled_manual(),
+        make_predictor("oracle"),
+        autoregressive=True,
+        cd_points=200,
+        progress=False,
+    )
+    assert r["autoregressive_component_acc"] == 1.0 and r["manuals_exact"] == 1.0
+    run = run_manual(load_manual(bundled_manual()), make_predictor("oracle"))
+    right, total = accuracy(run)
+    assert right == total == r["n_components"] and built_exactly(run) is True
+    step = run.main.steps[-1]
+    k = next(i for i, p in enumerate(step.placed) if p is not None)
+    ref, yaw, t, colour = step.placed[k]
+    step.placed[k] = (ref, yaw, (t[0] + 40, t[1], t[2]), colour)  # the last part, elsewhere
+    step.predictions[k].t = step.placed[k][2]
+    assert accuracy(run) == (total - 1, total)
+    assert built_exactly(run) is False

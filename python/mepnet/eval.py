@@ -18,6 +18,10 @@ Metrics (paper §5.1), written as JSON with the keys of DESIGN §8:
 - ``set_cd`` (with ``--autoregressive``): submodules are built by the predictor first, then the
   main model step by step on its own predictions; CD between the final predicted and
   ground-truth shapes (same scaling).
+- ``autoregressive_component_acc`` / ``manuals_exact`` (with ``--autoregressive``): what a user
+  gets from ``mepnet.infer``: the share of components placed exactly when every step is built
+  on the predictor's own earlier placements, and the share of manuals whose final model is
+  exactly right (parts, colours and voxels, submodules expanded).
 - ``mtc``: mistakes to complete, the fraction of steps with a wrong prediction given the
   ground-truth base (averaged over manuals).
 - ``seconds_per_step``: the predictor's wall time per step (detection + stage 2).
@@ -42,7 +46,7 @@ from mepnet.cli import run as run_cli
 from mepnet.errors import ConfigError, ManualFormatError
 from mepnet.files import atomic_write_json, check_output_file
 from mepnet.manual import ComponentRef, answers_of, iter_manual_dirs, load_manual
-from mepnet.plan import run_manual
+from mepnet.plan import accuracy, built_exactly, run_manual
 from mepnet.stage2 import LIFTS, PREDICTORS, Prediction, Predictor, make_predictor
 
 Placement = tuple[_bg.Component, int, tuple[int, int, int]]
@@ -163,7 +167,10 @@ def _canonical(
             (
                 j
                 for j, (gc, gy, gt_t) in enumerate(gt)
-                if j not in used and gc.name == c.name and c.same_placement(y, t, gy, gt_t)
+                if j not in used
+                and gc.name == c.name
+                and gc.bricks == c.bricks  # a predicted submodule may differ from the true one
+                and c.same_placement(y, t, gy, gt_t)
             ),
             None,
         )
@@ -197,6 +204,7 @@ def evaluate(
         answers_of(m)
     scorer = Scorer(cd_points)
     mtc, set_cd = [], []
+    ar_right = ar_total = manuals_exact = 0
     bar = tqdm(
         total=sum(len(m.all_steps()) * (2 if autoregressive else 1) for m in manuals),
         unit="step",
@@ -222,6 +230,10 @@ def evaluate(
         if autoregressive:
             # the plan a user gets: every step on the predictor's own earlier placements
             ar = run_manual(man, predictor, on_step=lambda: bar.update(1))
+            right, total = accuracy(ar)
+            ar_right += right
+            ar_total += total
+            manuals_exact += int(bool(built_exactly(ar)))
             placed = [(ar.components[r], y, t) for r, y, t, _ in ar.main.placed()]
             gt_final = [(comps[i.component], i.yaw, i.t) for i in answers.main.instances]
             set_cd.append(scorer.cd(placed, gt_final, _diag(gt_final)) if placed else float("nan"))
@@ -247,6 +259,8 @@ def evaluate(
         "component_cd": cd(scorer.comp_cd),
         "step_cd": cd(scorer.step_cd),
         "set_cd": cd(set_cd) if autoregressive else None,
+        "autoregressive_component_acc": ar_right / max(ar_total, 1) if autoregressive else None,
+        "manuals_exact": manuals_exact / len(manuals) if autoregressive else None,
         "mtc": float(np.mean(mtc)) if mtc else None,
         "seconds_per_step": float(np.mean(scorer.seconds)) if scorer.seconds else None,
         "median_seconds_per_step": float(np.median(scorer.seconds)) if scorer.seconds else None,
@@ -287,6 +301,12 @@ def format_table(rows: list[dict[str, Any]]) -> str:
             lines.append(
                 f"{'  submodules':14s} {f(r['submodule_component_acc'], True):>8s} {'':>8s} "
                 f"{f(r['submodule_component_cd']):>8s}"
+            )
+        if r.get("autoregressive_component_acc") is not None:
+            lines.append(
+                f"{'  on its own':14s} {f(r['autoregressive_component_acc'], True):>8s} "
+                f"(the plan built on its own predictions; manuals built exactly right: "
+                f"{f(r['manuals_exact'], True)}%)"
             )
     lines.append(
         f"({rows[0]['n_manuals']} manuals, {rows[0]['n_steps']} steps, {rows[0]['n_components']} components, "

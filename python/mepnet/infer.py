@@ -183,7 +183,8 @@ def run_manual_folder(path: Path, args: argparse.Namespace) -> int:
     if "correct" in plan:
         summary = (
             f"{plan['correct']}/{total} components exactly right "
-            f"({100 * plan['correct'] / max(total, 1):.1f}%)"
+            f"({100 * plan['correct'] / max(total, 1):.1f}%), built on its own predictions; "
+            f"the manual {'is' if plan['exact'] else 'is not'} built exactly right"
         )
     else:
         summary = f"{plan['placed']}/{total} components placed (the manual has no answers to score)"

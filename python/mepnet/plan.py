@@ -208,6 +208,76 @@ def correct(run: ManualRun, step: StepRun, p: Prediction) -> bool | None:
     )
 
 
+def step_matches(run: ManualRun, step: StepRun) -> int:
+    """How many of the step's true instances a prediction of the step places exactly (one
+    prediction per instance; rotation modulo symmetry); 0 without answers."""
+    if step.truth is None:
+        return 0
+    used: set[int] = set()
+    hits = 0
+    for inst in step.truth.placed():
+        comp = run.components.get(inst.component)
+        for j, p in enumerate(step.predictions):
+            if (
+                j not in used
+                and comp is not None
+                and p.component == inst.component
+                and p.placed
+                and p.failure is None
+                and comp.same_placement(inst.yaw, inst.t, p.yaw, p.t)
+            ):
+                used.add(j)
+                hits += 1
+                break
+    return hits
+
+
+def accuracy(run: ManualRun) -> tuple[int, int]:
+    """``(right, total)``: the true instances of every step of every build that the run placed
+    exactly (:func:`step_matches`), and how many there are."""
+    right = sum(step_matches(run, s) for b in run.builds for s in b.steps)
+    total = sum(len(s.truth.placed()) for b in run.builds for s in b.steps if s.truth is not None)
+    return right, total
+
+
+def _shape_key(placed: list[tuple[_bg.Component, int, tuple[int, int, int], int]]) -> list[Any]:
+    """A final shape as comparable data: per brick (submodules expanded) its part, colour and
+    occupied voxels, sorted, so that symmetric parts placed either way compare equal."""
+    if not placed:
+        return []
+    bricks = submodule_from_placed("shape", placed).bricks
+    key = []
+    for part, yaw, t, colour in bricks:
+        cells = part_cells(part, yaw, t)
+        key.append((part, colour, cells))
+    return sorted(key)
+
+
+def part_cells(part: str, yaw: int, t: tuple[int, int, int]) -> tuple[tuple[int, ...], ...]:
+    """The voxels a part occupies at a pose, sorted."""
+    from mepnet.geom import rotate_lattice
+
+    v = _bg.Component.primitive(part).voxels
+    # a voxel is a cell: rotate its centre (2x to stay on integers), then back to its corner
+    cells = []
+    for x, y, z in v.tolist():
+        cx, cy, cz = rotate_lattice((2 * x + 1, 2 * y + 1, 2 * z + 1), yaw)
+        cells.append(((cx - 1) // 2 + t[0], (cy - 1) // 2 + t[1], (cz - 1) // 2 + t[2]))
+    return tuple(sorted(cells))
+
+
+def built_exactly(run: ManualRun) -> bool | None:
+    """Whether the final model the run built is the true one (parts, colours and voxels, every
+    submodule expanded); None without answers."""
+    answers = run.manual.answers
+    if answers is None:
+        return None
+    truth_comps = answers.components(run.manual)
+    truth = [(truth_comps[i.component], i.yaw, i.t, i.colour) for i in answers.main.instances]
+    built = [(run.components[r], y, t, c) for r, y, t, c in run.main.placed()]
+    return _shape_key(built) == _shape_key(truth)
+
+
 def plan_json(run: ManualRun) -> dict[str, Any]:
     """The plan document (``plan.json``)."""
     manual = run.manual
@@ -253,7 +323,9 @@ def plan_json(run: ManualRun) -> dict[str, Any]:
         "placed": sum(1 for c in recs if c.get("lattice") is not None),
     }
     if manual.answers is not None:
-        doc["correct"] = sum(1 for c in recs if c.get("correct"))
+        right, _ = accuracy(run)
+        doc["correct"] = right
+        doc["exact"] = built_exactly(run)
     return doc
 
 
