@@ -48,8 +48,8 @@ def test_parse_gives_typed_tree():
     assert ref.matrix[0] == (0.0, 0.0, 1.0)
     assert f.model("SUB.LDR") is f.models[1]
     flat = f.flatten()
-    assert [p["name"] for p in flat] == ["3001.dat", "3003.dat"]
-    assert flat[1]["colour"] == 1 and flat[1]["step"] == 1
+    assert [p.name for p in flat] == ["3001.dat", "3003.dat"]
+    assert flat[1].colour == 1 and flat[1].step == 1 and flat[1].path == ("sub.ldr",)
 
 
 def test_write_read_round_trip(tmp_path: Path):
@@ -58,6 +58,109 @@ def test_write_read_round_trip(tmp_path: Path):
     ldraw.write(out, f)
     assert ldraw.read(out) == ldraw.LDrawFile(name="out.mpd", models=f.models, embedded_parts=[])
     assert "0 STEP" in out.read_text()
+
+
+def test_binding_types_are_frozen_and_typed():
+    f = ldraw.parse(SMALL, "small.mpd")
+    assert type(f) is ldraw.LDrawFile is mepnet._brickgeom.LDrawFile
+    assert isinstance(f.models, tuple) and all(type(m) is ldraw.LDrawModel for m in f.models)
+    ref = f.main.steps[0][0]
+    assert type(ref) is ldraw.LDrawRef and isinstance(f.main.steps[0], tuple)
+    assert type(ref.position) is tuple and type(ref.matrix[0]) is tuple
+    assert type(ref.position[0]) is float and type(ref.colour) is int
+    # repeated access gives the same objects (made once)
+    assert f.models is f.models and f.main.steps is f.main.steps and f.main is f.models[0]
+    for obj, attr, value in [
+        (f, "name", "x.mpd"),
+        (f, "models", ()),
+        (f.main, "steps", ()),
+        (f.main, "title", "x"),
+        (ref, "name", "3002.dat"),
+        (ref, "position", (0.0, 0.0, 0.0)),
+        (ref, "line", 1),
+    ]:
+        with pytest.raises(AttributeError, match="not writable"):
+            setattr(obj, attr, value)
+    assert "3001.dat" in repr(ref) and "main.ldr" in repr(f.main) and "small.mpd" in repr(f)
+    flat = f.flatten()
+    assert all(type(p) is ldraw.FlatPart for p in flat) and flat == f.flatten()
+    assert f.to_text() == mepnet._brickgeom.format_ldraw(f)
+
+    checks = ldraw.check(f)
+    assert [type(m) for m in checks] == [ldraw.ModelCheck] * 2
+    main = checks[0]
+    assert main.name == "main.ldr" and main.placeable and main.offset == (0.0, 0.0, 0.0)
+    assert [type(s) for s in main.steps] == [ldraw.StepCheck] * 2
+    step = main.steps[0]
+    assert (step.step, step.items, step.placeable, step.complete_base) == (1, 1, 1, True)
+    assert step.results == ((True, "ground"),)
+    brick, sub = main.items[0][0], main.items[1][0]
+    assert type(brick) is ldraw.StepItem
+    assert (brick.kind, brick.part, brick.submodel, brick.yaw, brick.t) == (
+        "part",
+        "3001",
+        None,
+        0,
+        (0, 3, 0),
+    )
+    assert (sub.kind, sub.part, sub.submodel, sub.line, sub.blocker) == (
+        "submodel",
+        None,
+        1,
+        5,
+        None,
+    )
+    assert ldraw.build_order(checks) == [1, 0]
+    with pytest.raises(AttributeError):
+        step.results = None  # type: ignore[misc]
+
+
+def test_binding_equality_ignores_line_and_builds_from_python():
+    f = ldraw.parse(SMALL, "small.mpd")
+    ref = f.main.steps[0][0]
+    same = ldraw.LDrawRef("3001.dat", 4, [0, -24, 0], IDENTITY, line=99)
+    assert ref == same and hash(ref) == hash(same) and ref != ldraw.LDrawRef("3001.dat", 4)
+    assert ref != "3001.dat"
+    built = ldraw.LDrawFile(
+        "small.mpd",
+        [
+            ldraw.LDrawModel("main.ldr", [[same], [f.main.steps[1][0]]], title="test model"),
+            ldraw.LDrawModel("sub.ldr", f.models[1].steps),
+        ],
+    )
+    assert built == f and built.models[0].steps[0][0] is same
+    assert built != ldraw.LDrawFile("other.mpd", f.models)
+    with pytest.raises(TypeError, match="unhashable"):
+        hash(f)
+
+
+@pytest.mark.parametrize(
+    "build, error, message",
+    [
+        (lambda: ldraw.LDrawRef(""), mepnet.LDrawError, "name is empty"),
+        (lambda: ldraw.LDrawRef("a.dat", position=(0, float("nan"), 0)), mepnet.LDrawError, "NaN"),
+        (lambda: ldraw.LDrawRef("a.dat", position=(2e6, 0, 0)), mepnet.LDrawError, "within"),
+        (lambda: ldraw.LDrawRef("a.dat", matrix=((1, 0, 0),) * 3), mepnet.LDrawError, "singular"),
+        (lambda: ldraw.LDrawRef("a.dat", position=(0, 0)), ValueError, "length 3"),
+        (lambda: ldraw.LDrawRef("a.dat", matrix=((1, 0, 0),)), ValueError, "length 3"),
+        (
+            lambda: ldraw.LDrawModel(" ", [[ldraw.LDrawRef("a.dat")]]),
+            mepnet.LDrawError,
+            "name is empty",
+        ),
+        (lambda: ldraw.LDrawModel("m", [[]]), mepnet.LDrawError, "step 1 is empty"),
+        (lambda: ldraw.LDrawModel("m", [[{"name": "a.dat"}]]), TypeError, "LDrawRef"),
+        (
+            lambda: ldraw.LDrawFile("f.mpd", [], [("", "2 24 0 0 0 1 1 1")]),
+            mepnet.LDrawError,
+            "embedded part",
+        ),
+        (lambda: ldraw.LDrawFile("f.mpd").main, IndexError, "no models"),
+    ],
+)
+def test_binding_rejects_bad_constructor_input(build, error, message):
+    with pytest.raises(error, match=message):
+        build()
 
 
 def test_pose_conversion_inverts():

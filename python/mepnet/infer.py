@@ -20,7 +20,6 @@ import argparse
 import sys
 from importlib import resources
 from pathlib import Path
-from typing import Any
 
 from mepnet import _brickgeom as _bg
 from mepnet import ldraw
@@ -28,7 +27,7 @@ from mepnet.cli import run
 from mepnet.errors import ConfigError, ManualFormatError, OutputError
 from mepnet.files import atomic_folder, check_replaceable
 from mepnet.geom import BrickGeomError, manual_camera, submodule_from_placed
-from mepnet.ldraw.io import build_order
+from mepnet.ldraw.io import ModelCheck, StepCheck, StepItem, build_order, check
 
 
 def bundled_example() -> Path:
@@ -41,49 +40,49 @@ def bundled_manual() -> Path:
     return Path(str(resources.files("mepnet") / "data" / "example_manual"))
 
 
-def _step_state(step: dict[str, Any]) -> str:
-    if step["results"] is None:
+def _step_state(step: StepCheck) -> str:
+    if step.results is None:
         return "not checked (parts outside the library)"
-    bad = [msg for ok, msg in step["results"] if not ok]
+    bad = [msg for ok, msg in step.results if not ok]
     return "valid" if not bad else f"INVALID: {bad[0]}"
 
 
-def print_plan(file: ldraw.LDrawFile, checks: list[dict[str, Any]]) -> None:
+def print_plan(file: ldraw.LDrawFile, checks: list[ModelCheck]) -> None:
     """Print the plan table, submodules first."""
     for m in build_order(checks):
         model = checks[m]
         kind = "main model" if m == 0 else "submodule"
-        print(f"\n{model['name']} ({kind}, {len(model['steps'])} steps)")
+        print(f"\n{model.name} ({kind}, {len(model.steps)} steps)")
         print(
             f"  {'step':>4}  {'component':<28} {'yaw':>3}  {'lattice (x, y, z)':<18} "
             f"{'LDU (x, y, z)':<22} attach"
         )
-        for step, items in zip(model["steps"], model["items"], strict=True):
-            results = step["results"] or [(False, "-")] * len(items)
+        for step, items in zip(model.steps, model.items, strict=True):
+            results = step.results or [(False, "-")] * len(items)
             for k, (it, (ok, kind_or_err)) in enumerate(zip(items, results, strict=True)):
-                if it["kind"] == "part":
-                    name = f"{it['part']} {_bg.part_info(it['part'])['name']}"
-                elif it["kind"] == "submodel":
-                    name = f"[{checks[it['submodel']]['name']}]"
+                if it.part is not None:
+                    name = f"{it.part} {_bg.part_info(it.part)['name']}"
+                elif it.submodel is not None:
+                    name = f"[{checks[it.submodel].name}]"
                 else:
-                    name = f"{it['name']} (not in library)"
-                pos, _ = ldraw.ldraw_placement(it["yaw"], tuple(it["t"]))
+                    name = f"{it.name} (not in library)"
+                pos, _ = ldraw.ldraw_placement(it.yaw, it.t)
                 ldu = "(" + ", ".join(f"{v:g}" for v in pos) + ")"
-                lat = "(" + ", ".join(str(v) for v in it["t"]) + ")"
-                attach = kind_or_err if ok else ("-" if step["results"] is None else "FAILS")
-                label = f"{step['step']:>4}" if k == 0 else "    "
-                print(f"  {label}  {name[:28]:<28} {it['yaw']:>3}  {lat:<18} {ldu:<22} {attach}")
+                lat = "(" + ", ".join(str(v) for v in it.t) + ")"
+                attach = kind_or_err if ok else ("-" if step.results is None else "FAILS")
+                label = f"{step.step:>4}" if k == 0 else "    "
+                print(f"  {label}  {name[:28]:<28} {it.yaw:>3}  {lat:<18} {ldu:<22} {attach}")
             print(f"        -> {_step_state(step)}")
 
 
-def render_steps(file: ldraw.LDrawFile, checks: list[dict[str, Any]], out: Path, size: int) -> int:
+def render_steps(file: ldraw.LDrawFile, checks: list[ModelCheck], out: Path, size: int) -> int:
     """Render the cumulative shape after every step of every model into the folder ``out``
     (written atomically); returns the number of images."""
     with atomic_folder(out, "mepnet.infer (LDraw steps)") as tmp:
         return _render_steps(checks, tmp, size)
 
 
-def _render_steps(checks: list[dict[str, Any]], out: Path, size: int) -> int:
+def _render_steps(checks: list[ModelCheck], out: Path, size: int) -> int:
     from PIL import Image
 
     written = 0
@@ -94,17 +93,15 @@ def _render_steps(checks: list[dict[str, Any]], out: Path, size: int) -> int:
         steps = [
             [
                 (
-                    _bg.Component.primitive(it["part"])
-                    if it["kind"] == "part"
-                    else comps[it["submodel"]],
-                    it["yaw"],
-                    (it["t"][0], it["t"][1] + lift, it["t"][2]),
-                    it["colour"],
+                    _component(it, comps),
+                    it.yaw,
+                    (it.t[0], it.t[1] + lift, it.t[2]),
+                    it.colour,
                 )
                 for it in items
-                if it["blocker"] is None
+                if it.blocker is None
             ]
-            for items in model["items"]
+            for items in model.items
         ]
         final = _bg.Assembly()
         for comp, yaw, t, col in (x for step in steps for x in step):
@@ -117,7 +114,7 @@ def _render_steps(checks: list[dict[str, Any]], out: Path, size: int) -> int:
         drop = final.bounds()[0][1]
         camera = manual_camera(final, drop=drop)
         asm = _bg.Assembly()
-        safe = "".join(c if c.isalnum() or c in "-_" else "_" for c in model["name"])
+        safe = "".join(c if c.isalnum() or c in "-_" else "_" for c in model.name)
         for s, step in enumerate(steps):
             for comp, yaw, t, col in step:
                 try:
@@ -129,12 +126,19 @@ def _render_steps(checks: list[dict[str, Any]], out: Path, size: int) -> int:
             r = _bg.render(asm, camera, size, size, supersample=3)
             Image.fromarray(r.rgb).save(out / f"{safe}_step_{s + 1:03d}.png")
             written += 1
-        if m != 0 and checks[m]["placeable"]:
+        if m != 0 and checks[m].placeable:
             placed = [
                 (c, y, (t[0], t[1] - lift, t[2]), col) for step in steps for c, y, t, col in step
             ]
-            comps[m] = submodule_from_placed(model["name"], placed)
+            comps[m] = submodule_from_placed(model.name, placed)
     return written
+
+
+def _component(it: StepItem, comps: dict[int, _bg.Component]) -> _bg.Component:
+    """What a placeable item places: a library part, or a submodel built before."""
+    if it.submodel is not None:
+        return comps[it.submodel]
+    return _bg.Component.primitive(str(it.part))
 
 
 def run_manual_folder(path: Path, args: argparse.Namespace) -> int:
@@ -195,7 +199,7 @@ def run_manual_folder(path: Path, args: argparse.Namespace) -> int:
 def run_ldraw(path: Path, args: argparse.Namespace) -> int:
     """The LDraw path: the file's own plan, checked step by step; ``--out``: step images."""
     file = ldraw.read(path)
-    checks = _bg.check_ldraw(file.to_dict())
+    checks = check(file)
     info = ldraw.inspect(file)
     print(
         f"mepnet: model {path.name}: {info['models']} models, {info['steps']} steps, "

@@ -346,8 +346,8 @@ def plan_ldraw(run: ManualRun) -> LDrawFile:
                         if not is_sub
                         else run.manual.submodules[int(ref.submodule)].name.lower(),  # type: ignore[arg-type]
                         colour=colour,
-                        position=tuple(pos),  # type: ignore[arg-type]
-                        matrix=tuple(tuple(r) for r in mat),  # type: ignore[arg-type]
+                        position=pos,
+                        matrix=mat,
                         is_submodel=is_sub,
                     )
                 )

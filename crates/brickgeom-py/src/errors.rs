@@ -88,6 +88,7 @@ pub fn to_py(err: E) -> PyErr {
         E::Parse { .. } => LDrawError::new_err(msg),
         E::MissingReference { .. } => LDrawError::new_err(msg),
         E::CyclicReference { .. } => LDrawError::new_err(msg),
+        E::InvalidLdraw { .. } => LDrawError::new_err(msg),
         E::Io { .. } => FileError::new_err(msg),
         E::InvalidArgument(_) => InvalidArgumentError::new_err(msg),
     }

@@ -1,175 +1,616 @@
-//! LDraw files <-> plain Python dicts (the typed wrappers live in `mepnet/ldraw.py`).
+//! LDraw files as typed values: frozen pyclasses over the core's [`LdrawFile`], [`LdrawModel`]
+//! and [`LdrawRef`] (read by the core or built in Python, checked by the reader's rules), the
+//! world-placed parts of a flattened file ([`FlatPart`]) and per-model / per-step / per-item
+//! validity ([`PyModelCheck`], [`StepCheck`], [`StepItem`]).
+//!
+//! A file's models and a model's steps are tuples of Python objects made on first access (or
+//! kept from the constructor), so `f.models[1] is f.model("sub.ldr")` and each access after the
+//! first costs nothing.
 
+use std::hash::{Hash, Hasher};
 use std::path::PathBuf;
 
 use brickgeom::ldraw::{
-    lattice_pose, ldraw_placement, load_part_geometry, parse_ldraw, read_ldraw, write_ldraw,
-    write_ldraw_string, EmbeddedPart, LdrawFile, LdrawModel, LdrawRef,
+    self as core, lattice_pose, ldraw_placement, load_part_geometry, normalise_name, EmbeddedPart,
+    FlatPart, LdrawFile, LdrawModel, LdrawRef,
 };
-use brickgeom::realmodel::{check_model_steps, ItemKind, LatticeFile};
+use brickgeom::realmodel::{check_model_steps, ItemKind, LatticeFile, StepCheck, StepItem};
 use brickgeom::Pose;
 use ndarray::Array2;
 use numpy::IntoPyArray;
-use pyo3::exceptions::PyValueError;
+use pyo3::exceptions::PyIndexError;
 use pyo3::prelude::*;
-use pyo3::types::{PyDict, PyList};
+use pyo3::sync::PyOnceLock;
+use pyo3::types::PyTuple;
 
 use crate::errors::{detach_core, IntoPyResult, InvalidArgumentError};
 
 type Mat = [[f64; 3]; 3];
+type Vec3 = (f64, f64, f64);
 
-fn file_to_dict<'py>(py: Python<'py>, f: &LdrawFile) -> PyResult<Bound<'py, PyDict>> {
-    let d = PyDict::new(py);
-    d.set_item("name", &f.name)?;
-    let models = PyList::empty(py);
-    for m in &f.models {
-        let md = PyDict::new(py);
-        md.set_item("name", &m.name)?;
-        md.set_item("title", &m.title)?;
-        let steps = PyList::empty(py);
-        for s in &m.steps {
-            let refs = PyList::empty(py);
-            for r in s {
-                let rd = PyDict::new(py);
-                rd.set_item("line", r.line)?;
-                rd.set_item("colour", r.colour)?;
-                rd.set_item("position", r.position)?;
-                rd.set_item("matrix", r.matrix)?;
-                rd.set_item("name", &r.name)?;
-                rd.set_item("is_submodel", r.is_submodel)?;
-                refs.append(rd)?;
-            }
-            steps.append(refs)?;
-        }
-        md.set_item("steps", steps)?;
-        models.append(md)?;
-    }
-    d.set_item("models", models)?;
-    let emb: Vec<(String, String)> = f
-        .embedded_parts
-        .iter()
-        .map(|e| (e.name.clone(), e.text.clone()))
-        .collect();
-    d.set_item("embedded_parts", emb)?;
-    Ok(d)
+const IDENTITY: Mat = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
+
+fn vec3(v: [f64; 3]) -> Vec3 {
+    (v[0], v[1], v[2])
 }
 
-fn dict_to_file(d: &Bound<'_, PyDict>) -> PyResult<LdrawFile> {
-    let get = |k: &str| -> PyResult<Bound<'_, PyAny>> {
-        d.get_item(k)?
-            .ok_or_else(|| PyValueError::new_err(format!("LDraw dict is missing '{k}'")))
-    };
-    let name: String = get("name")?.extract()?;
-    let mut models = Vec::new();
-    for m in get("models")?.try_iter()? {
-        let m = m?;
-        let m = m.cast::<PyDict>()?;
-        let mget = |k: &str| -> PyResult<Bound<'_, PyAny>> {
-            m.get_item(k)?
-                .ok_or_else(|| PyValueError::new_err(format!("LDraw model dict is missing '{k}'")))
+fn mat3(m: Mat) -> (Vec3, Vec3, Vec3) {
+    (vec3(m[0]), vec3(m[1]), vec3(m[2]))
+}
+
+/// A type-1 line: a part or submodel placed with a colour and a transform (LDraw frame, y down).
+/// Equality and hash ignore `line` (where it was read, not what it is).
+#[pyclass(name = "LDrawRef", module = "mepnet._brickgeom", frozen, eq, hash)]
+#[derive(Clone)]
+pub struct PyLdrawRef {
+    inner: LdrawRef,
+}
+
+impl PartialEq for PyLdrawRef {
+    fn eq(&self, other: &Self) -> bool {
+        self.inner == other.inner
+    }
+}
+
+impl Hash for PyLdrawRef {
+    // Consistent with equality: the fields compared exactly, floats left out (0.0 == -0.0).
+    fn hash<H: Hasher>(&self, state: &mut H) {
+        (&self.inner.name, self.inner.colour, self.inner.is_submodel).hash(state);
+    }
+}
+
+#[pymethods]
+impl PyLdrawRef {
+    /// Raises `LDrawError` for what the reader would not read back: a blank name, a non-finite
+    /// or huge number, a singular matrix.
+    #[new]
+    #[pyo3(signature = (name, colour=16, position=[0.0; 3], matrix=IDENTITY, is_submodel=false, line=0))]
+    fn new(
+        name: String,
+        colour: i32,
+        position: [f64; 3],
+        matrix: Mat,
+        is_submodel: bool,
+        line: usize,
+    ) -> PyResult<Self> {
+        let inner = LdrawRef {
+            line,
+            colour,
+            position,
+            matrix,
+            name,
+            is_submodel,
         };
-        let mut steps = Vec::new();
-        for s in mget("steps")?.try_iter()? {
-            let mut refs = Vec::new();
-            for r in s?.try_iter()? {
-                let r = r?;
-                let r = r.cast::<PyDict>()?;
-                let rget = |k: &str| -> PyResult<Bound<'_, PyAny>> {
-                    r.get_item(k)?.ok_or_else(|| {
-                        PyValueError::new_err(format!("LDraw reference dict is missing '{k}'"))
-                    })
-                };
-                refs.push(LdrawRef {
-                    line: r
-                        .get_item("line")?
-                        .map(|v| v.extract())
-                        .transpose()?
-                        .unwrap_or(0),
-                    colour: rget("colour")?.extract()?,
-                    position: rget("position")?.extract()?,
-                    matrix: rget("matrix")?.extract::<Mat>()?,
-                    name: rget("name")?.extract()?,
-                    is_submodel: rget("is_submodel")?.extract()?,
-                });
-            }
-            steps.push(refs);
+        inner.validate().py()?;
+        Ok(Self { inner })
+    }
+    #[getter]
+    fn name(&self) -> &str {
+        &self.inner.name
+    }
+    #[getter]
+    fn colour(&self) -> i32 {
+        self.inner.colour
+    }
+    #[getter]
+    fn position(&self) -> Vec3 {
+        vec3(self.inner.position)
+    }
+    #[getter]
+    fn matrix(&self) -> (Vec3, Vec3, Vec3) {
+        mat3(self.inner.matrix)
+    }
+    #[getter]
+    fn is_submodel(&self) -> bool {
+        self.inner.is_submodel
+    }
+    #[getter]
+    fn line(&self) -> usize {
+        self.inner.line
+    }
+    fn __repr__(&self) -> String {
+        let r = &self.inner;
+        format!(
+            "LDrawRef({:?}, colour={}, position={:?}, matrix={:?}, is_submodel={}, line={})",
+            r.name,
+            r.colour,
+            vec3(r.position),
+            mat3(r.matrix),
+            if r.is_submodel { "True" } else { "False" },
+            r.line
+        )
+    }
+}
+
+/// One model (the main model or a submodel): its name, description and non-empty build steps.
+#[pyclass(name = "LDrawModel", module = "mepnet._brickgeom", frozen, eq)]
+pub struct PyLdrawModel {
+    inner: LdrawModel,
+    /// `steps` as a tuple of tuples of `LDrawRef`, made once.
+    steps: PyOnceLock<Py<PyTuple>>,
+}
+
+impl PartialEq for PyLdrawModel {
+    fn eq(&self, other: &Self) -> bool {
+        self.inner == other.inner
+    }
+}
+
+impl PyLdrawModel {
+    fn wrap(inner: LdrawModel) -> Self {
+        Self {
+            inner,
+            steps: PyOnceLock::new(),
         }
-        models.push(LdrawModel {
-            name: mget("name")?.extract()?,
-            title: m
-                .get_item("title")?
-                .map(|v| v.extract())
-                .transpose()?
-                .unwrap_or_default(),
-            steps,
-        });
     }
-    let embedded_parts = match d.get_item("embedded_parts")? {
-        None => Vec::new(),
-        Some(v) => v
-            .extract::<Vec<(String, String)>>()?
+}
+
+#[pymethods]
+impl PyLdrawModel {
+    /// Raises `LDrawError` for a blank name or an empty step.
+    #[new]
+    #[pyo3(signature = (name, steps=Vec::new(), title=String::new()))]
+    fn new(
+        py: Python<'_>,
+        name: String,
+        steps: Vec<Vec<Bound<'_, PyLdrawRef>>>,
+        title: String,
+    ) -> PyResult<Self> {
+        let inner = LdrawModel {
+            name,
+            title,
+            steps: steps
+                .iter()
+                .map(|s| s.iter().map(|r| r.get().inner.clone()).collect())
+                .collect(),
+        };
+        inner.validate().py()?;
+        let rows = steps
             .into_iter()
-            .map(|(name, text)| EmbeddedPart { name, text })
-            .collect(),
-    };
-    Ok(LdrawFile {
-        name,
-        models,
-        embedded_parts,
-    })
-}
-
-/// Read an .ldr/.mpd file into a dict tree: name, models[{name, title, steps[[ref]]}],
-/// embedded_parts; each ref {line, colour, position, matrix, name, is_submodel} (LDraw frame).
-#[pyfunction]
-fn read_ldraw_dict<'py>(py: Python<'py>, path: PathBuf) -> PyResult<Bound<'py, PyDict>> {
-    let f = detach_core(py, || read_ldraw(&path))?;
-    file_to_dict(py, &f)
-}
-
-/// Parse LDraw text (bytes) named `file_name` into a dict tree.
-#[pyfunction]
-fn parse_ldraw_dict<'py>(
-    py: Python<'py>,
-    data: &[u8],
-    file_name: &str,
-) -> PyResult<Bound<'py, PyDict>> {
-    let f = detach_core(py, || parse_ldraw(data, file_name))?;
-    file_to_dict(py, &f)
-}
-
-/// Write a dict tree to `path` (atomically: temporary file, then rename).
-#[pyfunction]
-fn write_ldraw_dict(py: Python<'_>, path: PathBuf, file: &Bound<'_, PyDict>) -> PyResult<()> {
-    let f = dict_to_file(file)?;
-    detach_core(py, || write_ldraw(&path, &f))
-}
-
-/// The text a dict tree is written as.
-#[pyfunction]
-fn format_ldraw_dict(file: &Bound<'_, PyDict>) -> PyResult<String> {
-    Ok(write_ldraw_string(&dict_to_file(file)?))
-}
-
-/// Every part of the main model with world placement: list of dicts {name, colour, position,
-/// matrix, path, step, line}.
-#[pyfunction]
-fn flatten_ldraw<'py>(py: Python<'py>, file: &Bound<'py, PyDict>) -> PyResult<Bound<'py, PyList>> {
-    let f = dict_to_file(file)?;
-    let parts = py.detach(|| f.flatten());
-    let out = PyList::empty(py);
-    for p in parts {
-        let d = PyDict::new(py);
-        d.set_item("name", p.name)?;
-        d.set_item("colour", p.colour)?;
-        d.set_item("position", p.position)?;
-        d.set_item("matrix", p.matrix)?;
-        d.set_item("path", p.path)?;
-        d.set_item("step", p.step)?;
-        d.set_item("line", p.line)?;
-        out.append(d)?;
+            .map(|s| PyTuple::new(py, s))
+            .collect::<PyResult<Vec<_>>>()?;
+        let model = Self::wrap(inner);
+        // A fresh lock: setting cannot fail.
+        let _ = model.steps.set(py, PyTuple::new(py, rows)?.unbind());
+        Ok(model)
     }
-    Ok(out)
+    #[getter]
+    fn name(&self) -> &str {
+        &self.inner.name
+    }
+    #[getter]
+    fn title(&self) -> &str {
+        &self.inner.title
+    }
+    /// The build steps, each a tuple of the references added in it.
+    #[getter]
+    fn steps<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyTuple>> {
+        let steps = self.steps.get_or_try_init(py, || {
+            let rows = self
+                .inner
+                .steps
+                .iter()
+                .map(|s| PyTuple::new(py, s.iter().map(|r| PyLdrawRef { inner: r.clone() })))
+                .collect::<PyResult<Vec<_>>>()?;
+            PyResult::Ok(PyTuple::new(py, rows)?.unbind())
+        })?;
+        Ok(steps.bind(py).clone())
+    }
+    fn __repr__(&self) -> String {
+        let m = &self.inner;
+        format!(
+            "LDrawModel({:?}, title={:?}, steps=<{} steps, {} references>)",
+            m.name,
+            m.title,
+            m.steps.len(),
+            m.steps.iter().map(Vec::len).sum::<usize>()
+        )
+    }
+}
+
+/// A parsed (or built) .ldr/.mpd file: `models[0]` is the main model.
+#[pyclass(name = "LDrawFile", module = "mepnet._brickgeom", frozen, eq)]
+pub struct PyLdrawFile {
+    inner: LdrawFile,
+    /// `models` as a tuple of `LDrawModel`, made once.
+    models: PyOnceLock<Py<PyTuple>>,
+}
+
+impl PartialEq for PyLdrawFile {
+    fn eq(&self, other: &Self) -> bool {
+        self.inner == other.inner
+    }
+}
+
+impl PyLdrawFile {
+    fn wrap(inner: LdrawFile) -> Self {
+        Self {
+            inner,
+            models: PyOnceLock::new(),
+        }
+    }
+
+    fn models_tuple<'py>(&self, py: Python<'py>) -> PyResult<&Bound<'py, PyTuple>> {
+        let models = self.models.get_or_try_init(py, || {
+            let models = self
+                .inner
+                .models
+                .iter()
+                .map(|m| PyLdrawModel::wrap(m.clone()));
+            PyResult::Ok(PyTuple::new(py, models)?.unbind())
+        })?;
+        Ok(models.bind(py))
+    }
+}
+
+#[pymethods]
+impl PyLdrawFile {
+    /// `embedded_parts`: `(name, text)` of parts defined inside an .mpd, written back verbatim.
+    /// Raises `LDrawError` for an embedded part with a blank name.
+    #[new]
+    #[pyo3(signature = (name, models=Vec::new(), embedded_parts=Vec::new()))]
+    fn new(
+        py: Python<'_>,
+        name: String,
+        models: Vec<Bound<'_, PyLdrawModel>>,
+        embedded_parts: Vec<(String, String)>,
+    ) -> PyResult<Self> {
+        let inner = LdrawFile {
+            name,
+            models: models.iter().map(|m| m.get().inner.clone()).collect(),
+            embedded_parts: embedded_parts
+                .into_iter()
+                .map(|(name, text)| EmbeddedPart { name, text })
+                .collect(),
+        };
+        inner.validate().py()?;
+        let file = Self::wrap(inner);
+        // A fresh lock: setting cannot fail.
+        let _ = file.models.set(py, PyTuple::new(py, models)?.unbind());
+        Ok(file)
+    }
+    #[getter]
+    fn name(&self) -> &str {
+        &self.inner.name
+    }
+    #[getter]
+    fn models<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyTuple>> {
+        self.models_tuple(py).cloned()
+    }
+    #[getter]
+    fn embedded_parts<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyTuple>> {
+        PyTuple::new(
+            py,
+            self.inner
+                .embedded_parts
+                .iter()
+                .map(|e| (e.name.as_str(), e.text.as_str())),
+        )
+    }
+    /// The main model (`models[0]`); `IndexError` when the file has none.
+    #[getter]
+    fn main<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        let models = self.models_tuple(py)?;
+        if models.is_empty() {
+            return Err(PyIndexError::new_err(format!(
+                "LDraw file {:?} has no models",
+                self.inner.name
+            )));
+        }
+        models.get_item(0)
+    }
+    /// A model by name (case-insensitive, `\` and `/` alike), or None.
+    fn model<'py>(&self, py: Python<'py>, name: &str) -> PyResult<Option<Bound<'py, PyAny>>> {
+        let key = normalise_name(name);
+        let Some(i) = self
+            .inner
+            .models
+            .iter()
+            .position(|m| normalise_name(&m.name) == key)
+        else {
+            return Ok(None);
+        };
+        self.models_tuple(py)?.get_item(i).map(Some)
+    }
+    /// Every part of the main model with its world placement (LDraw frame), in file order.
+    fn flatten(&self, py: Python<'_>) -> Vec<PyFlatPart> {
+        flatten(py, &self.inner)
+    }
+    /// The file as LDraw text.
+    fn to_text(&self, py: Python<'_>) -> String {
+        let f = &self.inner;
+        py.detach(|| core::write_ldraw_string(f))
+    }
+    fn __repr__(&self) -> String {
+        let f = &self.inner;
+        format!(
+            "LDrawFile({:?}, models=<{} models>, embedded_parts=<{} parts>)",
+            f.name,
+            f.models.len(),
+            f.embedded_parts.len()
+        )
+    }
+}
+
+/// A part of a flattened file: its world placement after composing every submodel transform
+/// above it. Equality ignores `line`.
+#[pyclass(name = "FlatPart", module = "mepnet._brickgeom", frozen, eq)]
+#[derive(PartialEq)]
+pub struct PyFlatPart {
+    inner: FlatPart,
+}
+
+#[pymethods]
+impl PyFlatPart {
+    #[getter]
+    fn name(&self) -> &str {
+        &self.inner.name
+    }
+    /// Colour after resolving 16 (and 24) to the enclosing submodel reference's colour.
+    #[getter]
+    fn colour(&self) -> i32 {
+        self.inner.colour
+    }
+    #[getter]
+    fn position(&self) -> Vec3 {
+        vec3(self.inner.position)
+    }
+    #[getter]
+    fn matrix(&self) -> (Vec3, Vec3, Vec3) {
+        mat3(self.inner.matrix)
+    }
+    /// Submodels from just below the main model down to the one holding the part.
+    #[getter]
+    fn path<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyTuple>> {
+        PyTuple::new(py, &self.inner.path)
+    }
+    /// Index into `models[0].steps` of the main-model step holding the top-level reference.
+    #[getter]
+    fn step(&self) -> usize {
+        self.inner.step
+    }
+    #[getter]
+    fn line(&self) -> usize {
+        self.inner.line
+    }
+    fn __repr__(&self) -> String {
+        let p = &self.inner;
+        format!(
+            "FlatPart({:?}, colour={}, position={:?}, path={:?}, step={}, line={})",
+            p.name,
+            p.colour,
+            vec3(p.position),
+            p.path,
+            p.step,
+            p.line
+        )
+    }
+}
+
+fn flatten(py: Python<'_>, file: &LdrawFile) -> Vec<PyFlatPart> {
+    py.detach(|| file.flatten())
+        .into_iter()
+        .map(|inner| PyFlatPart { inner })
+        .collect()
+}
+
+/// One reference of a step resolved against the library: a library part, a submodel of the
+/// file, or a part outside the library; its lattice pose in the model's own frame.
+#[pyclass(name = "StepItem", module = "mepnet._brickgeom", frozen)]
+pub struct PyStepItem {
+    inner: StepItem,
+    blocker: Option<String>,
+}
+
+#[pymethods]
+impl PyStepItem {
+    /// The name as referenced (normalised).
+    #[getter]
+    fn name(&self) -> &str {
+        &self.inner.name
+    }
+    /// `"part"`, `"submodel"` or `"unknown"` (a part outside the library).
+    #[getter]
+    fn kind(&self) -> &'static str {
+        match self.inner.kind {
+            ItemKind::Part(_) => "part",
+            ItemKind::Submodel(_) => "submodel",
+            ItemKind::Unknown => "unknown",
+        }
+    }
+    /// The library part id, for a part.
+    #[getter]
+    fn part(&self) -> Option<&'static str> {
+        match self.inner.kind {
+            ItemKind::Part(p) => Some(p),
+            _ => None,
+        }
+    }
+    /// The index into the file's models, for a submodel.
+    #[getter]
+    fn submodel(&self) -> Option<usize> {
+        match self.inner.kind {
+            ItemKind::Submodel(m) => Some(m),
+            _ => None,
+        }
+    }
+    #[getter]
+    fn colour(&self) -> i32 {
+        self.inner.colour
+    }
+    #[getter]
+    fn yaw(&self) -> u8 {
+        self.inner.pose.yaw
+    }
+    #[getter]
+    fn t(&self) -> (i32, i32, i32) {
+        let t = self.inner.pose.t;
+        (t[0], t[1], t[2])
+    }
+    #[getter]
+    fn off_lattice(&self) -> bool {
+        self.inner.off_lattice
+    }
+    #[getter]
+    fn non_yaw(&self) -> bool {
+        self.inner.non_yaw
+    }
+    #[getter]
+    fn line(&self) -> usize {
+        self.inner.line
+    }
+    /// Why the item cannot be placed as a component, or None when it can.
+    #[getter]
+    fn blocker(&self) -> Option<&str> {
+        self.blocker.as_deref()
+    }
+    fn __repr__(&self) -> String {
+        format!(
+            "StepItem({:?}, kind={:?}, yaw={}, t={:?}, colour={}, line={}, blocker={:?})",
+            self.inner.name,
+            self.kind(),
+            self.inner.pose.yaw,
+            self.t(),
+            self.inner.colour,
+            self.inner.line,
+            self.blocker
+        )
+    }
+}
+
+/// The physical validity of one step.
+#[pyclass(name = "StepCheck", module = "mepnet._brickgeom", frozen)]
+pub struct PyStepCheck {
+    inner: StepCheck,
+}
+
+#[pymethods]
+impl PyStepCheck {
+    /// 1-based step number within its model.
+    #[getter]
+    fn step(&self) -> usize {
+        self.inner.step
+    }
+    /// How many items the step has.
+    #[getter]
+    fn items(&self) -> usize {
+        self.inner.items
+    }
+    /// How many of them are placeable components.
+    #[getter]
+    fn placeable(&self) -> usize {
+        self.inner.placeable
+    }
+    /// Per item `(ok, attach kind or why it fails)` when every item is placeable, else None.
+    #[getter]
+    fn results<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyTuple>>> {
+        let Some(results) = &self.inner.results else {
+            return Ok(None);
+        };
+        let pairs = results.iter().map(|r| match r {
+            Ok(kind) => (true, kind.name().to_string()),
+            Err(e) => (false, e.to_string()),
+        });
+        PyTuple::new(py, pairs).map(Some)
+    }
+    /// Every item of this and all earlier steps is placeable, so "not connected" is a real
+    /// finding (otherwise the part may rest on something outside the library).
+    #[getter]
+    fn complete_base(&self) -> bool {
+        self.inner.complete_base
+    }
+    fn __repr__(&self) -> String {
+        let s = &self.inner;
+        let failed = s.results.as_ref().map_or("None".to_string(), |r| {
+            r.iter().filter(|x| x.is_err()).count().to_string()
+        });
+        format!(
+            "StepCheck(step={}, items={}, placeable={}, failed={}, complete_base={})",
+            s.step,
+            s.items,
+            s.placeable,
+            failed,
+            if s.complete_base { "True" } else { "False" }
+        )
+    }
+}
+
+/// One model of a checked file: its lattice offset, whether every item is placeable, the items
+/// of each step and the validity of each step.
+#[pyclass(name = "ModelCheck", module = "mepnet._brickgeom", frozen)]
+pub struct PyModelCheck {
+    name: String,
+    placeable: bool,
+    offset: [f64; 3],
+    /// Tuple of `StepCheck`, one per step.
+    steps: Py<PyTuple>,
+    /// Tuple (per step) of tuples of `StepItem`.
+    items: Py<PyTuple>,
+}
+
+#[pymethods]
+impl PyModelCheck {
+    #[getter]
+    fn name(&self) -> &str {
+        &self.name
+    }
+    /// Every item, submodels included recursively, is a library part on the lattice.
+    #[getter]
+    fn placeable(&self) -> bool {
+        self.placeable
+    }
+    /// Where the model's lattice sits in its LDraw frame (LDU, y down).
+    #[getter]
+    fn offset(&self) -> Vec3 {
+        vec3(self.offset)
+    }
+    #[getter]
+    fn steps<'py>(&self, py: Python<'py>) -> Bound<'py, PyTuple> {
+        self.steps.bind(py).clone()
+    }
+    #[getter]
+    fn items<'py>(&self, py: Python<'py>) -> Bound<'py, PyTuple> {
+        self.items.bind(py).clone()
+    }
+    fn __repr__(&self, py: Python<'_>) -> String {
+        format!(
+            "ModelCheck({:?}, placeable={}, steps=<{} steps>)",
+            self.name,
+            if self.placeable { "True" } else { "False" },
+            self.steps.bind(py).len()
+        )
+    }
+}
+
+/// Read an .ldr/.mpd file (references in LDraw's y-down frame).
+#[pyfunction(name = "read_ldraw")]
+fn read_ldraw_py(py: Python<'_>, path: PathBuf) -> PyResult<PyLdrawFile> {
+    detach_core(py, || core::read_ldraw(&path)).map(PyLdrawFile::wrap)
+}
+
+/// Parse LDraw text (bytes) named `file_name`.
+#[pyfunction(name = "parse_ldraw")]
+fn parse_ldraw_py(py: Python<'_>, data: &[u8], file_name: &str) -> PyResult<PyLdrawFile> {
+    detach_core(py, || core::parse_ldraw(data, file_name)).map(PyLdrawFile::wrap)
+}
+
+/// Write a file to `path` (atomically: temporary file, then rename).
+#[pyfunction(name = "write_ldraw")]
+fn write_ldraw_py(py: Python<'_>, path: PathBuf, file: &PyLdrawFile) -> PyResult<()> {
+    let f = &file.inner;
+    detach_core(py, || core::write_ldraw(&path, f))
+}
+
+/// The text a file is written as.
+#[pyfunction(name = "format_ldraw")]
+fn format_ldraw_py(py: Python<'_>, file: &PyLdrawFile) -> String {
+    file.to_text(py)
+}
+
+/// Every part of the main model with its world placement.
+#[pyfunction]
+fn flatten_ldraw(py: Python<'_>, file: &PyLdrawFile) -> Vec<PyFlatPart> {
+    flatten(py, &file.inner)
 }
 
 /// `(yaw, (x, y, z), off_lattice, non_yaw)` of an LDraw placement (y-down LDU, 3x3 matrix).
@@ -191,72 +632,39 @@ fn ldraw_placement_of(yaw: i64, t: (i32, i32, i32)) -> PyResult<([f64; 3], Mat)>
     Ok(ldraw_placement(Pose::new(yaw as u8, [t.0, t.1, t.2])))
 }
 
-/// Resolve every model against the library and check each step's physical validity.
-/// Returns per model a dict {name, placeable, steps: [{step, items, placeable, results}],
-/// items: [[{name, kind, part, submodel, colour, yaw, t, off_lattice, non_yaw, line}]]} where
-/// `results` is None when some item is not placeable, else per item `(ok, kind_or_error)`.
+/// Resolve every model against the library and check each step's physical validity: one
+/// `ModelCheck` per model of the file.
 #[pyfunction]
-fn check_ldraw<'py>(py: Python<'py>, file: &Bound<'py, PyDict>) -> PyResult<Bound<'py, PyList>> {
-    let f = dict_to_file(file)?;
+fn check_ldraw(py: Python<'_>, file: &PyLdrawFile) -> PyResult<Vec<PyModelCheck>> {
+    let f = &file.inner;
     let (lf, checks) = py.detach(|| {
-        let lf = LatticeFile::new(&f);
+        let lf = LatticeFile::new(f);
         let checks: Vec<_> = (0..lf.models.len())
             .map(|m| check_model_steps(&lf, m))
             .collect();
         (lf, checks)
     });
-    let out = PyList::empty(py);
+    let mut out = Vec::with_capacity(lf.models.len());
     for (m, (model, check)) in lf.models.iter().zip(checks).enumerate() {
-        let d = PyDict::new(py);
-        d.set_item("name", &model.name)?;
-        d.set_item("placeable", lf.placeable[m])?;
-        d.set_item("offset", model.offset)?;
-        let steps = PyList::empty(py);
-        for s in check.py()? {
-            let sd = PyDict::new(py);
-            sd.set_item("step", s.step)?;
-            sd.set_item("items", s.items)?;
-            sd.set_item("placeable", s.placeable)?;
-            let res: Option<Vec<(bool, String)>> = s.results.map(|r| {
-                r.into_iter()
-                    .map(|x| match x {
-                        Ok(k) => (true, k.name().to_string()),
-                        Err(e) => (false, e.to_string()),
-                    })
-                    .collect()
-            });
-            sd.set_item("results", res)?;
-            sd.set_item("complete_base", s.complete_base)?;
-            steps.append(sd)?;
-        }
-        d.set_item("steps", steps)?;
-        let items = PyList::empty(py);
-        for step in &model.steps {
-            let row = PyList::empty(py);
-            for it in step {
-                let id = PyDict::new(py);
-                id.set_item("name", &it.name)?;
-                let (kind, part, sub) = match it.kind {
-                    ItemKind::Part(p) => ("part", Some(p), None),
-                    ItemKind::Submodel(s) => ("submodel", None, Some(s)),
-                    ItemKind::Unknown => ("unknown", None, None),
-                };
-                id.set_item("kind", kind)?;
-                id.set_item("part", part)?;
-                id.set_item("submodel", sub)?;
-                id.set_item("colour", it.colour)?;
-                id.set_item("yaw", it.pose.yaw)?;
-                id.set_item("t", (it.pose.t[0], it.pose.t[1], it.pose.t[2]))?;
-                id.set_item("off_lattice", it.off_lattice)?;
-                id.set_item("non_yaw", it.non_yaw)?;
-                id.set_item("line", it.line)?;
-                id.set_item("blocker", lf.blocker(it))?;
-                row.append(id)?;
-            }
-            items.append(row)?;
-        }
-        d.set_item("items", items)?;
-        out.append(d)?;
+        let steps = check.py()?.into_iter().map(|inner| PyStepCheck { inner });
+        let items = model
+            .steps
+            .iter()
+            .map(|step| {
+                let row = step.iter().map(|it| PyStepItem {
+                    inner: it.clone(),
+                    blocker: lf.blocker(it),
+                });
+                PyTuple::new(py, row)
+            })
+            .collect::<PyResult<Vec<_>>>()?;
+        out.push(PyModelCheck {
+            name: model.name.clone(),
+            placeable: lf.placeable[m],
+            offset: model.offset,
+            steps: PyTuple::new(py, steps)?.unbind(),
+            items: PyTuple::new(py, items)?.unbind(),
+        });
     }
     Ok(out)
 }
@@ -299,10 +707,17 @@ fn load_part_mesh<'py>(
 }
 
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
-    m.add_function(wrap_pyfunction!(read_ldraw_dict, m)?)?;
-    m.add_function(wrap_pyfunction!(parse_ldraw_dict, m)?)?;
-    m.add_function(wrap_pyfunction!(write_ldraw_dict, m)?)?;
-    m.add_function(wrap_pyfunction!(format_ldraw_dict, m)?)?;
+    m.add_class::<PyLdrawRef>()?;
+    m.add_class::<PyLdrawModel>()?;
+    m.add_class::<PyLdrawFile>()?;
+    m.add_class::<PyFlatPart>()?;
+    m.add_class::<PyStepItem>()?;
+    m.add_class::<PyStepCheck>()?;
+    m.add_class::<PyModelCheck>()?;
+    m.add_function(wrap_pyfunction!(read_ldraw_py, m)?)?;
+    m.add_function(wrap_pyfunction!(parse_ldraw_py, m)?)?;
+    m.add_function(wrap_pyfunction!(write_ldraw_py, m)?)?;
+    m.add_function(wrap_pyfunction!(format_ldraw_py, m)?)?;
     m.add_function(wrap_pyfunction!(flatten_ldraw, m)?)?;
     m.add_function(wrap_pyfunction!(lattice_pose_of, m)?)?;
     m.add_function(wrap_pyfunction!(ldraw_placement_of, m)?)?;

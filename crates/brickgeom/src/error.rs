@@ -43,6 +43,10 @@ pub enum BrickGeomError {
         line: usize,
         name: String,
     },
+    /// An LDraw file, model or reference built in memory that the reader would not read back
+    /// (an empty name, a non-finite or huge number, a singular matrix, an empty step).
+    #[error("{what}: {message}")]
+    InvalidLdraw { what: String, message: String },
     /// A submodel that (directly or indirectly) references itself.
     #[error("{file}: cyclic submodel reference: {chain}")]
     CyclicReference { file: String, chain: String },

@@ -108,6 +108,8 @@ fn mutate(bytes: &[u8], op: u8, a: usize, b: usize) -> Vec<u8> {
 /// written text must parse back to the same file.
 fn exercise(bytes: &[u8]) {
     if let Ok(file) = parse_ldraw(bytes, "fuzz.mpd") {
+        // What the reader accepts passes the checks on values built in memory.
+        file.validate().expect("a parsed file validates");
         let _ = file.flatten();
         let text = write_ldraw_string(&file);
         let back = parse_ldraw(text.as_bytes(), "fuzz.mpd").expect("written output parses");

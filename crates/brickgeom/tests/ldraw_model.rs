@@ -272,6 +272,67 @@ fn writer_layouts() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+#[test]
+fn values_built_in_memory_are_checked_by_the_reader_rules() {
+    let good = LdrawRef {
+        line: 0,
+        colour: 4,
+        position: [0.0, -24.0, 0.0],
+        matrix: yaw_matrix(1).map(|r| r.map(f64::from)),
+        name: "3001.dat".into(),
+        is_submodel: false,
+    };
+    assert!(good.validate().is_ok());
+    let bad_ref = |edit: fn(&mut LdrawRef), message: &str| {
+        let mut r = good.clone();
+        edit(&mut r);
+        match r.validate() {
+            Err(e @ BrickGeomError::InvalidLdraw { .. }) => {
+                assert!(e.to_string().contains(message), "{e} lacks '{message}'")
+            }
+            other => panic!("expected InvalidLdraw, got {other:?}"),
+        }
+    };
+    bad_ref(|r| r.name = " ".into(), "name is empty");
+    bad_ref(|r| r.position[1] = f64::NAN, "position value NaN");
+    bad_ref(|r| r.matrix[2][2] = f64::INFINITY, "matrix value inf");
+    bad_ref(|r| r.position[0] = 2e6, "position value 2000000");
+    bad_ref(|r| r.matrix = [[0.0; 3]; 3], "singular");
+
+    let model = LdrawModel {
+        name: "main.ldr".into(),
+        title: String::new(),
+        steps: vec![vec![good.clone()], vec![]],
+    };
+    let err = model.validate().unwrap_err();
+    assert_eq!(
+        err.to_string(),
+        "LDraw model 'main.ldr': step 2 is empty (a step holds at least one reference)"
+    );
+    let unnamed = LdrawModel {
+        name: String::new(),
+        ..model.clone()
+    };
+    assert!(unnamed
+        .validate()
+        .unwrap_err()
+        .to_string()
+        .contains("name is empty"));
+    let file = LdrawFile {
+        name: "f.mpd".into(),
+        models: vec![LdrawModel {
+            steps: vec![vec![good]],
+            ..model
+        }],
+        embedded_parts: vec![],
+    };
+    assert!(file.validate().is_ok());
+    assert!(parse(&format!("1 4 0 0 0 {I} 3001.dat\n"))
+        .unwrap()
+        .validate()
+        .is_ok());
+}
+
 /// Random models: steps of references with yaw matrices and lattice positions (plus some
 /// arbitrary finite numbers), colours, and references to later submodels (no cycles).
 fn arb_file() -> impl Strategy<Value = LdrawFile> {
@@ -338,6 +399,7 @@ proptest! {
 
     #[test]
     fn write_then_read_round_trips(file in arb_file()) {
+        prop_assert!(file.validate().is_ok());
         let text = write_ldraw_string(&file);
         let back = parse_ldraw(text.as_bytes(), &file.name).unwrap();
         prop_assert_eq!(&back, &file);

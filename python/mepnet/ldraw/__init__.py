@@ -3,10 +3,16 @@ manuals (:mod:`.convert`) and ``python -m mepnet.ldraw`` (:mod:`.cli`)."""
 
 from mepnet.ldraw.cli import main
 from mepnet.ldraw.io import (
+    IDENTITY,
+    FlatPart,
     LDrawFile,
     LDrawModel,
     LDrawRef,
+    ModelCheck,
+    StepCheck,
+    StepItem,
     build_order,
+    check,
     inspect,
     lattice_pose,
     ldraw_placement,
@@ -17,10 +23,16 @@ from mepnet.ldraw.io import (
 )
 
 __all__ = [
+    "IDENTITY",
+    "FlatPart",
     "LDrawFile",
     "LDrawModel",
     "LDrawRef",
+    "ModelCheck",
+    "StepCheck",
+    "StepItem",
     "build_order",
+    "check",
     "inspect",
     "lattice_pose",
     "ldraw_placement",

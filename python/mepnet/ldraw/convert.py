@@ -24,7 +24,7 @@ from mepnet.geom import (
     rotate_ldu,
     submodule_from_placed,
 )
-from mepnet.ldraw.io import LDrawFile, build_order
+from mepnet.ldraw.io import LDrawFile, build_order, check
 from mepnet.manual import write_manual
 
 #: Library parts eligible as substitutes: rectangular bricks, plates and tiles.
@@ -128,7 +128,7 @@ def convert(
 ) -> dict[str, Any]:
     """Convert a model to a manual folder at ``out``; returns a report (counts, substitutions)."""
 
-    checks = _bg.check_ldraw(file.to_dict())
+    checks = check(file)
     # A main model that only places submodels, the biggest of them tilted or off the lattice
     # for display (or that places a single submodel), is a wrapper: the biggest submodel is the
     # model, and the rest (minifigures, stands) is left out.
@@ -136,8 +136,8 @@ def convert(
 
     for m in build_order(checks):  # submodels before the models that use them
         sizes[m] = sum(
-            sizes.get(it["submodel"], 0) if it["kind"] == "submodel" else 1
-            for st in checks[m]["items"]
+            sizes.get(it.submodel, 0) if it.submodel is not None else 1
+            for st in checks[m].items
             for it in st
         )
 
@@ -146,12 +146,13 @@ def convert(
 
     root = 0
     while True:
-        items = [it for step in checks[root]["items"] for it in step]
-        if not items or any(it["kind"] != "submodel" for it in items):
+        top = [it for step in checks[root].items for it in step]
+        subs = [it.submodel for it in top if it.submodel is not None]
+        if not top or len(subs) < len(top):
             break
-        biggest = max(items, key=lambda it: size_of(it["submodel"]))
-        if len(items) == 1 or biggest["off_lattice"] or biggest["non_yaw"]:
-            root = biggest["submodel"]
+        biggest = max(range(len(subs)), key=lambda i: size_of(subs[i]))
+        if len(top) == 1 or top[biggest].off_lattice or top[biggest].non_yaw:
+            root = subs[biggest]
         else:
             break
     subs_finder = Substitutes(ldraw_dir)
@@ -167,46 +168,44 @@ def convert(
         lift = 1 << 10  # build high first: model frames may reach below y = 0
         placed: list[tuple[_bg.Component, Any, int, tuple[int, int, int], int]] = []
         steps: list[list[int]] = []
-        for s, items in enumerate(model["items"]):
+        for s, items in enumerate(model.items):
             ids = []
             for it in items:
                 where = {
-                    "model": model["name"],
+                    "model": model.name,
                     "step": s + 1,
-                    "line": it["line"],
-                    "name": it["name"],
+                    "line": it.line,
+                    "name": it.name,
                 }
-                yaw, t = it["yaw"], tuple(it["t"])
-                if it["off_lattice"] or it["non_yaw"]:
+                yaw, t = it.yaw, it.t
+                if it.off_lattice or it.non_yaw:
                     dropped.append(
                         {
                             **where,
                             "reason": "off the lattice"
-                            if it["off_lattice"]
+                            if it.off_lattice
                             else "not a pure yaw rotation",
                         }
                     )
                     continue
-                if it["kind"] == "submodel":
-                    if it["submodel"] not in converted:
+                if it.submodel is not None:
+                    if it.submodel not in converted:
                         dropped.append({**where, "reason": "submodel has no convertible parts"})
                         continue
-                    comp, shift, slot = converted[it["submodel"]]
-                    placed.append(
-                        (comp, slot, yaw, (t[0], t[1] - shift + lift, t[2]), it["colour"])
-                    )
-                elif it["kind"] == "part":
+                    comp, shift, slot = converted[it.submodel]
+                    placed.append((comp, slot, yaw, (t[0], t[1] - shift + lift, t[2]), it.colour))
+                elif it.part is not None:
                     placed.append(
                         (
-                            _bg.Component.primitive(it["part"]),
-                            it["part"],
+                            _bg.Component.primitive(it.part),
+                            it.part,
                             yaw,
                             (t[0], t[1] + lift, t[2]),
-                            it["colour"],
+                            it.colour,
                         )
                     )
                 else:
-                    found, why = subs_finder.find(it["name"].removesuffix(".dat"), yaw, t)
+                    found, why = subs_finder.find(it.name.removesuffix(".dat"), yaw, t)
                     if found is None:
                         dropped.append({**where, "reason": why})
                         continue
@@ -218,7 +217,7 @@ def convert(
                             part,
                             yaw2,
                             (t2[0], t2[1] + lift, t2[2]),
-                            it["colour"],
+                            it.colour,
                         )
                     )
                 ids.append(len(placed) - 1)
@@ -236,7 +235,7 @@ def convert(
             except BrickGeomError as e:
                 dropped.append(
                     {
-                        "model": model["name"],
+                        "model": model.name,
                         "name": comp.name,
                         "reason": f"overlaps another part ({e})",
                     }
@@ -263,14 +262,14 @@ def convert(
             kept_parts = sum(len(placed[i][0].bricks) for i in sorted(keep_set))
             break
         comp = submodule_from_placed(
-            model["name"],
+            model.name,
             [(c, yaw, t, col) for c, _, yaw, t, col in (placed[i] for i in sorted(keep_set))],
         )
         bricks = comp.bricks
         converted[m] = (comp, shift, len(submodules))
         submodules.append(
             {
-                "name": model["name"],
+                "name": model.name,
                 "symmetry": comp.symmetry,
                 "topmost": comp.topmost,
                 "bricks": [
@@ -285,7 +284,7 @@ def convert(
     total = len(file.flatten())
     report = {
         "file": file.name,
-        "main_model": checks[root]["name"],
+        "main_model": checks[root].name,
         "steps": len(main_build["steps"]) + sum(len(s["build"]["steps"]) for s in submodules),
         "submodules": len(submodules),
         "parts_in_file": total,

@@ -28,7 +28,7 @@
 use std::collections::HashMap;
 use std::path::Path;
 
-use super::text::{decode, det3, parse_err, split_fields, type1_numbers};
+use super::text::{decode, det3, parse_err, split_fields, type1_numbers, MAX_ABS_VALUE};
 use crate::error::{BrickGeomError, Result};
 
 /// Largest number of parts a model may expand to when all submodel references are flattened.
@@ -99,6 +99,74 @@ pub struct EmbeddedPart {
     pub name: String,
     /// The block's lines (without the `0 FILE`/`0 NOFILE` lines), joined by `\n`.
     pub text: String,
+}
+
+// Values built in memory (by a program, not the reader) are checked against the reader's rules,
+// so that what is written reads back: the reader rejects blank names, non-finite or huge numbers
+// and singular matrices, and drops empty steps.
+
+/// An `InvalidLdraw` error about `what`.
+fn invalid(what: String, message: impl Into<String>) -> BrickGeomError {
+    BrickGeomError::InvalidLdraw {
+        what,
+        message: message.into(),
+    }
+}
+
+impl LdrawRef {
+    /// Check a reference built in memory by the reader's rules: a name that is not blank,
+    /// finite numbers of magnitude at most [`MAX_ABS_VALUE`], a non-singular matrix.
+    pub fn validate(&self) -> Result<()> {
+        let what = || format!("LDraw reference '{}'", self.name);
+        if self.name.trim().is_empty() {
+            return Err(invalid(what(), "the name is empty"));
+        }
+        let fields = [
+            ("position", &self.position[..]),
+            ("matrix", self.matrix.as_flattened()),
+        ];
+        for (field, values) in fields {
+            if let Some(v) = values
+                .iter()
+                .find(|v| !v.is_finite() || v.abs() > MAX_ABS_VALUE)
+            {
+                return Err(invalid(
+                    what(),
+                    format!(
+                        "{field} value {v} is not a finite number within +-{MAX_ABS_VALUE:e} LDU"
+                    ),
+                ));
+            }
+        }
+        let det = det3(&self.matrix);
+        if det.abs() < 1e-6 {
+            return Err(invalid(
+                what(),
+                format!("singular transformation matrix (determinant {det:e})"),
+            ));
+        }
+        Ok(())
+    }
+}
+
+impl LdrawModel {
+    /// Check a model built in memory by the reader's rules: a name that is not blank, no empty
+    /// step, every reference valid ([`LdrawRef::validate`]).
+    pub fn validate(&self) -> Result<()> {
+        if self.name.trim().is_empty() {
+            return Err(invalid("LDraw model".into(), "the name is empty"));
+        }
+        if let Some(i) = self.steps.iter().position(Vec::is_empty) {
+            return Err(invalid(
+                format!("LDraw model '{}'", self.name),
+                format!(
+                    "step {} is empty (a step holds at least one reference)",
+                    i + 1
+                ),
+            ));
+        }
+        self.steps.iter().flatten().try_for_each(LdrawRef::validate)
+    }
 }
 
 /// Normalise a reference or block name: trimmed, lower case, `\` -> `/`.
@@ -544,6 +612,16 @@ fn check_expansion(file: &LdrawFile, file_name: &str) -> Result<()> {
 }
 
 impl LdrawFile {
+    /// Check a file built in memory by the reader's rules: every model valid
+    /// ([`LdrawModel::validate`]) and no embedded part with a blank name.
+    pub fn validate(&self) -> Result<()> {
+        self.models.iter().try_for_each(LdrawModel::validate)?;
+        if self.embedded_parts.iter().any(|p| p.name.trim().is_empty()) {
+            return Err(invalid("LDraw embedded part".into(), "the name is empty"));
+        }
+        Ok(())
+    }
+
     /// The main model (`models[0]`), if any.
     pub fn main(&self) -> Option<&LdrawModel> {
         self.models.first()
