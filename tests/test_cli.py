@@ -65,7 +65,7 @@ def test_infer_never_deletes_what_it_did_not_write(tmp_path: Path):
     assert sorted(p.name for p in manual.iterdir()) == before
     # its own earlier output is replaced; leftovers of a killed run (SIGKILL) are removed
     plan = tmp_path / "plan"
-    stale = tmp_path / f".tmp-plan-{dead_pid()}-abcdef"
+    stale = tmp_path / f".tmp-mepnet-plan-{dead_pid()}-abcdef"
     stale.mkdir()
     for _ in range(2):
         r = cmd("mepnet.infer", bundled(), "--out", plan, "--predictor", "oracle", "--no-progress")
@@ -159,9 +159,9 @@ def test_synth_ranges_and_concurrent_runs(tmp_path: Path):
     out.mkdir()
     # another run still writing into the same folder (this process is alive) keeps its
     # temporary folder; a killed run's is removed
-    live = out / f".tmp-manual_00000009-{os.getpid()}-abc"
+    live = out / f".tmp-mepnet-manual_00000009-{os.getpid()}-abc"
     live.mkdir()
-    dead = out / f".tmp-manual_00000008-{dead_pid()}-abc"
+    dead = out / f".tmp-mepnet-manual_00000008-{dead_pid()}-abc"
     dead.mkdir()
     r = cmd(
         "mepnet.synth",
@@ -325,3 +325,353 @@ def test_synth_caps_worker_processes(tmp_path: Path):
     if cap < 12:
         assert f"using {cap} worker processes, not 1000" in r.stderr
     assert len(list((tmp_path / "o").glob("manual_*"))) == 12
+
+
+def test_usage_mistakes_are_one_line():
+    for args in (
+        ("mepnet.infer", "--size", "abc"),
+        ("mepnet.ldraw",),
+        ("mepnet.manual", "strip", "x"),
+        ("mepnet.eval", "--data", "x"),
+        ("mepnet.synth", "--manuals", "1e9", "--out", "o"),
+    ):
+        r = cmd(*args)
+        one_line_error(r, "(see --help)")
+
+
+def test_json_outputs_replace_only_their_own(tmp_path: Path):
+    mine = tmp_path / "mine.json"
+    mine.write_text('{"my": "notes"}')
+    r = cmd(
+        "mepnet.eval",
+        "--data",
+        bundled(),
+        "--predictor",
+        "oracle",
+        "--json",
+        mine,
+        "--no-progress",
+        "--cd-points",
+        "50",
+    )
+    one_line_error(r, "mine.json", "not written by mepnet.eval")
+    assert mine.read_text() == '{"my": "notes"}'
+    ours = tmp_path / "ours.json"
+    for _ in range(2):  # its own earlier output is replaced
+        r = cmd(
+            "mepnet.eval",
+            "--data",
+            bundled(),
+            "--predictor",
+            "oracle",
+            "--json",
+            ours,
+            "--no-progress",
+            "--cd-points",
+            "50",
+        )
+        assert r.returncode == 0, r.stderr
+    assert json.loads(ours.read_text())["written_by"] == "mepnet.eval"
+    r = cmd("mepnet.ldraw", "info", example_mpd(), "--json", "/dev/null")
+    one_line_error(r, "/dev/null", "not a regular file")
+    assert Path("/dev/null").is_char_device()
+    manual_json = tmp_path / "m"
+    import shutil
+
+    shutil.copytree(bundled(), manual_json)
+    before = (manual_json / "manual.json").read_bytes()
+    r = cmd(
+        "mepnet.eval",
+        "--data",
+        manual_json,
+        "--predictor",
+        "oracle",
+        "--json",
+        manual_json / "manual.json",
+    )
+    one_line_error(r, "manual.json", "not written by mepnet.eval")
+    assert (manual_json / "manual.json").read_bytes() == before
+
+
+def test_inputs_that_are_not_files(tmp_path: Path):
+    os.mkfifo(tmp_path / "fifo.ldr")
+    r = cmd("mepnet.ldraw", "info", tmp_path / "fifo.ldr", timeout=60)
+    one_line_error(r, "fifo.ldr", "not a regular file")
+    os.mkfifo(tmp_path / "w.safetensors")
+    r = cmd(
+        "mepnet.infer",
+        bundled(),
+        "--out",
+        tmp_path / "o",
+        "--weights",
+        tmp_path / "w.safetensors",
+        timeout=60,
+    )
+    one_line_error(r, "w.safetensors", "not a regular file")
+
+
+def test_weights_and_checkpoints_with_malformed_headers(tmp_path: Path):
+    import torch
+    from safetensors.torch import save_file
+
+    for name, meta in (
+        ("list", "[1, 2]"),
+        ("str", '"x"'),
+        ("cfg", '{"format": "mepnet.model", "version": 1, "model_config": "slim"}'),
+    ):
+        save_file(
+            {"a": torch.zeros(1)}, str(tmp_path / f"{name}.safetensors"), metadata={"mepnet": meta}
+        )
+        r = cmd(
+            "mepnet.infer",
+            bundled(),
+            "--out",
+            tmp_path / "o",
+            "--weights",
+            tmp_path / f"{name}.safetensors",
+            "--no-progress",
+        )
+        one_line_error(r, f"{name}.safetensors")
+    run = tmp_path / "run"
+    r = cmd(
+        "mepnet.train",
+        "--out",
+        run,
+        "--data",
+        bundled(),
+        "--model",
+        "tiny",
+        "--steps",
+        "1",
+        "--batch-size",
+        "1",
+        "--workers",
+        "0",
+        "--no-progress",
+    )
+    assert r.returncode == 0, r.stderr
+    from safetensors import safe_open
+
+    with safe_open(str(run / "checkpoint.safetensors"), "pt") as f:
+        tensors = {k: f.get_tensor(k) for k in f.keys()}
+        doc = json.loads(f.metadata()["mepnet"])
+    for change in ({"step": -3}, {"step": "x"}, {"scheduler": [1]}, {"ranks": "x"}):
+        save_file(
+            tensors,
+            str(run / "checkpoint.safetensors"),
+            metadata={"mepnet": json.dumps({**doc, **change})},
+        )
+        r = cmd(
+            "mepnet.train",
+            "--out",
+            run,
+            "--resume",
+            "--steps",
+            "2",
+            "--workers",
+            "0",
+            "--no-progress",
+        )
+        one_line_error(r, "checkpoint.safetensors", "malformed training state")
+
+
+@pytest.mark.parametrize(
+    "args, fragment",
+    [
+        (("--lr", "nan"), "--lr"),
+        (("--lr", "-1"), "--lr"),
+        (("--grad-clip", "-1"), "--grad-clip"),
+        (("--plateau-factor", "5"), "--plateau-factor"),
+        (("--threads", "100000"), "--threads"),
+        (("--seed", "-1"), "--seed"),
+    ],
+)
+def test_training_settings_are_checked(tmp_path: Path, args: tuple[str, ...], fragment: str):
+    r = cmd(
+        "mepnet.train",
+        "--out",
+        tmp_path / "run",
+        "--data",
+        bundled(),
+        "--model",
+        "tiny",
+        "--steps",
+        "1",
+        "--workers",
+        "0",
+        *args,
+    )
+    one_line_error(r, fragment)
+    assert not (tmp_path / "run").exists()
+
+
+@pytest.mark.parametrize(
+    "config, fragment",
+    [
+        ([1, 2], "JSON object"),
+        ({"batch_size": "2"}, "batch_size"),
+        ({"augment": "yes"}, "augment"),
+        ({"data": 3}, "data"),
+        ({"out": 3}, "out"),
+    ],
+)
+def test_training_config_files_are_checked(tmp_path: Path, config, fragment: str):
+    f = tmp_path / "train.json"
+    f.write_text(json.dumps(config))
+    r = cmd(
+        "mepnet.train",
+        "--config",
+        f,
+        "--out",
+        tmp_path / "run",
+        "--steps",
+        "1",
+        "--model",
+        "tiny",
+        "--workers",
+        "0",
+    )
+    one_line_error(r, "train.json", fragment)
+
+
+def test_two_trainings_into_one_folder(tmp_path: Path):
+    out = tmp_path / "run"
+    args = [
+        "mepnet.train",
+        "--out",
+        str(out),
+        "--data",
+        str(bundled()),
+        "--model",
+        "tiny",
+        "--steps",
+        "400",
+        "--batch-size",
+        "1",
+        "--workers",
+        "0",
+    ]
+    first = subprocess.Popen(
+        [sys.executable, "-m", *args], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE
+    )
+    try:
+        t0 = time.monotonic()
+        while not (out / ".mepnet-train.lock").exists():
+            assert first.poll() is None and time.monotonic() - t0 < 120
+            time.sleep(0.1)
+        time.sleep(1.0)
+        r = cmd(*args)
+        one_line_error(r, str(out), "another training run")
+    finally:
+        first.kill()
+        first.communicate()
+
+
+def test_synth_settings_the_probe_cannot_hide(tmp_path: Path):
+    for cfg in (
+        {"components": [-5, -1]},
+        {"components": ["a", 2]},
+        {"p_submodule": 2.0},
+        {"p_submodule": "x"},
+    ):
+        f = tmp_path / "g.json"
+        f.write_text(json.dumps(cfg))
+        r = cmd(
+            "mepnet.synth",
+            "--out",
+            tmp_path / "o",
+            "--manuals",
+            "1",
+            "--size",
+            "32",
+            "--config",
+            f,
+            "--no-progress",
+        )
+        one_line_error(r, "generator settings")
+
+
+def test_file_names_need_not_be_utf8(tmp_path: Path):
+    import shutil
+
+    name = os.fsdecode(b"bad\xffname")
+    shutil.copytree(bundled(), tmp_path / name)
+    for args in (
+        (
+            "mepnet.infer",
+            tmp_path / name,
+            "--out",
+            tmp_path / "o",
+            "--predictor",
+            "oracle",
+            "--no-progress",
+        ),
+        (
+            "mepnet.eval",
+            "--data",
+            tmp_path / name,
+            "--predictor",
+            "oracle-noisy",
+            "--no-progress",
+            "--cd-points",
+            "50",
+        ),
+        ("mepnet.restyle", "--data", tmp_path / name, "--out", tmp_path / "rs"),
+    ):
+        r = subprocess.run(
+            [sys.executable, "-m", *map(os.fsencode, map(str, args))],
+            capture_output=True,
+            timeout=600,
+        )
+        assert r.returncode == 0, r.stderr.decode(errors="replace")
+        assert b"Traceback" not in r.stderr
+
+
+def test_restyle_data_dot(tmp_path: Path):
+    r = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "mepnet.restyle",
+            "--data",
+            ".",
+            "--out",
+            str(tmp_path / "rs"),
+            "--only",
+            "page",
+        ],
+        capture_output=True,
+        text=True,
+        cwd=bundled(),
+        timeout=300,
+    )
+    assert r.returncode == 0, r.stderr
+    assert "restyled 1 manual" in r.stdout
+    assert (tmp_path / "rs" / bundled().name / "manual.json").is_file()
+
+
+def test_errors_in_data_workers_are_one_line(tmp_path: Path):
+    import shutil
+
+    data = tmp_path / "data" / "m"
+    shutil.copytree(bundled(), data)
+    for p in data.glob("step_0*.png"):
+        if not p.name.endswith("_ids.png"):
+            p.write_bytes(b"garbage")
+    r = cmd(
+        "mepnet.train",
+        "--out",
+        tmp_path / "run",
+        "--data",
+        tmp_path / "data",
+        "--model",
+        "tiny",
+        "--steps",
+        "2",
+        "--batch-size",
+        "1",
+        "--workers",
+        "1",
+        "--no-progress",
+    )
+    one_line_error(r, "unreadable step image")

@@ -169,6 +169,37 @@ BAD: list[tuple[str, Any, str]] = [
         "must be a file name inside",
     ),
     ("answers missing a step", lambda d: d["answers"]["steps"].pop(), "answers have"),
+    (
+        "image is the folder",
+        lambda d: d["steps"][0].update(image="."),
+        "must be a file name inside",
+    ),
+    (
+        "image name with NUL",
+        lambda d: d["steps"][0].update(image="a\x00b.png"),
+        "must be a file name inside",
+    ),
+    (
+        "image name too long",
+        lambda d: d["steps"][0].update(image="x" * 300 + ".png"),
+        "must be a file name inside",
+    ),
+    (
+        "answers collide",
+        lambda d: d["answers"]["instances"][1].update(
+            t=d["answers"]["instances"][0]["t"],
+            component=d["answers"]["instances"][0]["component"],
+            yaw=d["answers"]["instances"][0]["yaw"],
+        ),
+        "instance",
+    ),
+    (
+        "submodule bricks collide",
+        lambda d: d["answers"]["submodules"][0]["bricks"].append(
+            d["answers"]["submodules"][0]["bricks"][0]
+        ),
+        "answers submodule 0 brick",
+    ),
 ]
 
 

@@ -67,7 +67,7 @@ def test_rerun_completes_only_what_is_missing(tmp_path: Path):
     # missing manual
     dead = subprocess.Popen([sys.executable, "-c", "pass"])
     dead.wait()
-    leftover = out / f".tmp-manual_00000008-{dead.pid}-abc"
+    leftover = out / f".tmp-mepnet-manual_00000008-{dead.pid}-abc"
     leftover.mkdir()
     (leftover / "step_001.png").write_bytes(b"partial")
     import shutil

@@ -4,24 +4,45 @@ problem on stderr, exit 2, no traceback -- and Ctrl-C ends with one line and exi
 
 from __future__ import annotations
 
+import argparse
 import contextlib
 import signal
 import sys
 from collections.abc import Callable, Iterator
+from typing import NoReturn
 
 from mepnet.errors import MepnetError
 from mepnet.geom import BrickGeomError
 
 #: Exit status of a command stopped by bad input.
 BAD_INPUT = 2
+OUT_OF_MEMORY = "out of memory (the input or the settings ask for more than this machine has)"
 #: Exit status of a command stopped by Ctrl-C (128 + SIGINT).
 INTERRUPTED = 130
+
+
+class ArgumentParser(argparse.ArgumentParser):
+    """argparse with the one-line contract: a usage mistake is ``PROG: error: MESSAGE (see
+    --help)`` on stderr and exit 2, without the usage block (``--help`` still shows it)."""
+
+    def error(self, message: str) -> NoReturn:
+        print(f"{self.prog}: error: {message} (see --help)", file=sys.stderr)
+        raise SystemExit(BAD_INPUT)
 
 
 def fail(prog: str, message: str) -> int:
     """Print ``prog: error: message`` on stderr; returns :data:`BAD_INPUT`."""
     print(f"{prog}: error: {message}", file=sys.stderr)
     return BAD_INPUT
+
+
+def one_line(message: str) -> str:
+    """An error message as one line: an error re-raised from a worker process (torch's
+    DataLoader wraps it with the worker's traceback) keeps only its own message."""
+    if "Traceback (most recent call last)" in message:
+        last = message.strip().splitlines()[-1]
+        return last.split(": ", 1)[-1] if ": " in last else last
+    return " ".join(message.split("\n"))
 
 
 def os_error_message(e: OSError) -> str:
@@ -33,15 +54,23 @@ def os_error_message(e: OSError) -> str:
 
 def run(prog: str, work: Callable[[], int]) -> int:
     """Run ``work`` (a command's body) and map its bad-input errors to exit statuses."""
+    for stream in (sys.stdout, sys.stderr):
+        # file names need not be UTF-8: print them escaped rather than fail on them
+        if hasattr(stream, "reconfigure"):
+            stream.reconfigure(errors="backslashreplace")
     try:
         return int(work())
     except KeyboardInterrupt:
         print(f"{prog}: interrupted", file=sys.stderr)
         return INTERRUPTED
     except (MepnetError, BrickGeomError) as e:
-        return fail(prog, str(e))
+        return fail(prog, one_line(str(e)))
     except RecursionError:
         return fail(prog, "input nested too deeply")
+    except MemoryError:
+        return fail(
+            prog, "out of memory (the input or the settings ask for more than this machine has)"
+        )
     except OSError as e:
         return fail(prog, os_error_message(e))
 

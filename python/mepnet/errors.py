@@ -13,6 +13,10 @@ class MepnetError(ValueError):
     """Bad input: the message names the input and the problem."""
 
 
+class InputError(MepnetError):
+    """An input path that cannot be read as a file (missing, a folder, a FIFO or device)."""
+
+
 class ManualFormatError(MepnetError):
     """A manual folder, ``manual.json`` or step image that does not follow the format."""
 

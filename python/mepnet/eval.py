@@ -42,12 +42,16 @@ import numpy as np
 
 from mepnet import _brickgeom as _bg
 from mepnet import metrics
+from mepnet.cli import ArgumentParser
 from mepnet.cli import run as run_cli
 from mepnet.errors import ConfigError, ManualFormatError
 from mepnet.files import atomic_write_json, check_output_file
 from mepnet.manual import ComponentRef, answers_of, iter_manual_dirs, load_manual
 from mepnet.plan import accuracy, built_exactly, run_manual
 from mepnet.stage2 import LIFTS, PREDICTORS, Prediction, Predictor, make_predictor
+
+#: The ``written_by`` mark of the metrics files ``--json`` writes (and may replace).
+WRITER = "mepnet.eval"
 
 Placement = tuple[_bg.Component, int, tuple[int, int, int]]
 
@@ -209,6 +213,7 @@ def evaluate(
         total=sum(len(m.all_steps()) * (2 if autoregressive else 1) for m in manuals),
         unit="step",
         disable=not progress,
+        leave=False,  # an error then stays one line
         file=sys.stderr,
     )
     for man in manuals:
@@ -317,7 +322,7 @@ def format_table(rows: list[dict[str, Any]]) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point; returns the exit status (2 on bad input, with one line on stderr)."""
-    ap = argparse.ArgumentParser(prog="python -m mepnet.eval", description=__doc__.splitlines()[0])
+    ap = ArgumentParser(prog="python -m mepnet.eval", description=__doc__.splitlines()[0])
     ap.add_argument("--data", required=True, help="a manual folder, or a folder of manual folders")
     ap.add_argument("--predictor", required=True, choices=PREDICTORS)
     ap.add_argument("--json", help="write the metrics to this JSON file")
@@ -351,12 +356,14 @@ def _main(args: argparse.Namespace) -> int:
         raise ManualFormatError(f"{args.data}: not a folder")
     if not 1 <= args.cd_points <= 10_000_000:
         raise ConfigError(f"--cd-points must be within 1..10000000, got {args.cd_points}")
+    if args.seed < 0:
+        raise ConfigError(f"--seed must not be negative, got {args.seed}")
     if not (math.isfinite(args.sigma) and args.sigma >= 0):
         raise ConfigError(f"--sigma must be a finite number >= 0, got {args.sigma}")
     if not (math.isfinite(args.time_limit) and args.time_limit > 0):
         raise ConfigError(f"--time-limit must be a finite number > 0, got {args.time_limit}")
     if args.json:
-        check_output_file(args.json)  # before the work, not after it
+        check_output_file(args.json, WRITER)  # before the work, not after it
     predictor = make_predictor(
         args.predictor, args.sigma, args.seed, args.time_limit, args.weights, args.lift
     )
@@ -365,7 +372,7 @@ def _main(args: argparse.Namespace) -> int:
     )
     print(format_table([result]))
     if args.json:
-        atomic_write_json(args.json, result)
+        atomic_write_json(args.json, {"written_by": WRITER, **result})
     return 0
 
 

@@ -23,7 +23,7 @@ from pathlib import Path
 
 from mepnet import _brickgeom as _bg
 from mepnet import ldraw
-from mepnet.cli import run
+from mepnet.cli import ArgumentParser, run
 from mepnet.errors import ConfigError, ManualFormatError, OutputError
 from mepnet.files import atomic_folder, check_replaceable
 from mepnet.geom import BrickGeomError, manual_camera, submodule_from_placed
@@ -154,7 +154,11 @@ def run_manual_folder(path: Path, args: argparse.Namespace) -> int:
     check_replaceable(out, PLAN_WRITER)  # before the work: never replace what is not ours
     predictor = make_predictor(args.predictor, sigma=args.sigma, weights=args.weights)
     with tqdm(
-        total=len(manual.all_steps()), unit="step", file=sys.stderr, disable=args.no_progress
+        total=len(manual.all_steps()),
+        unit="step",
+        leave=False,  # an error then stays one line
+        file=sys.stderr,
+        disable=args.no_progress,
     ) as bar:
         run = run_manual(manual, predictor, on_step=lambda: bar.update(1))
     plan = write_plan(run, out)
@@ -221,7 +225,7 @@ def main(argv: list[str] | None = None) -> int:
     Ctrl-C)."""
     from mepnet.stage2 import PREDICTORS
 
-    ap = argparse.ArgumentParser(prog="python -m mepnet.infer", description=__doc__.splitlines()[0])
+    ap = ArgumentParser(prog="python -m mepnet.infer", description=__doc__.splitlines()[0])
     ap.add_argument(
         "model",
         nargs="?",

@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from mepnet.cli import run
+from mepnet.cli import ArgumentParser, run
 from mepnet.errors import ConfigError
 from mepnet.files import atomic_folder
 from mepnet.manual import iter_manual_dirs, load_manual
@@ -83,7 +83,9 @@ def restyle_manual(src: Path, out: Path, only: tuple[str, ...], strength: float,
     from PIL import Image
 
     manual = load_manual(src)  # checks the folder and lists every step image
-    rng = np.random.default_rng([seed, zlib.crc32(src.name.encode())])
+    rng = np.random.default_rng(
+        [seed, zlib.crc32(src.resolve().name.encode("utf-8", "surrogateescape"))]
+    )
     style = {k: v for k, v in draw_style(rng, strength).items() if k in only}
     with atomic_folder(out, "mepnet.restyle", replace=False) as tmp:
         for p in src.iterdir():
@@ -105,7 +107,9 @@ def restyle_manual(src: Path, out: Path, only: tuple[str, ...], strength: float,
                     ids = ans.ids()
                 else:
                     ids = regions_of(rgb)
-                img_rng = np.random.default_rng([seed, zlib.crc32(str(rel).encode())])
+                img_rng = np.random.default_rng(
+                    [seed, zlib.crc32(str(rel).encode("utf-8", "surrogateescape"))]
+                )
                 Image.fromarray(restyle_image(rgb, ids, style, img_rng)).save(tmp / rel)
                 steps += 1
         doc = json.loads((tmp / "manual.json").read_text())
@@ -116,9 +120,7 @@ def restyle_manual(src: Path, out: Path, only: tuple[str, ...], strength: float,
 
 def build_parser() -> argparse.ArgumentParser:
     """The ``python -m mepnet.restyle`` argument parser."""
-    ap = argparse.ArgumentParser(
-        prog="python -m mepnet.restyle", description=__doc__.splitlines()[0]
-    )
+    ap = ArgumentParser(prog="python -m mepnet.restyle", description=__doc__.splitlines()[0])
     ap.add_argument("--data", required=True, type=Path, help="a manual folder or a folder of them")
     ap.add_argument("--out", required=True, type=Path, help="output folder")
     ap.add_argument(
@@ -142,6 +144,8 @@ def _main(args: argparse.Namespace) -> int:
     unknown = [f for f in only if f not in FACTORS]
     if unknown or not only:
         raise ConfigError(f"--only: unknown factor(s) {unknown or only} (choose from {FACTORS})")
+    if args.seed < 0:
+        raise ConfigError(f"--seed must not be negative, got {args.seed}")
     if not (0.0 <= args.strength <= 2.0):
         raise ConfigError(f"--strength must be within 0..2, got {args.strength}")
     if not args.data.is_dir():
@@ -152,7 +156,7 @@ def _main(args: argparse.Namespace) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     done = 0
     for src in manuals:
-        out = args.out / src.name
+        out = args.out / src.resolve().name  # (--data . names the folder it is)
         if out.exists():
             continue
         restyle_manual(src, out, only, args.strength, args.seed)

@@ -20,8 +20,14 @@ import time
 from pathlib import Path
 from typing import Any
 
-from mepnet.cli import INTERRUPTED, quiet_interrupts_in_workers, run, workers_ignore_interrupts
-from mepnet.errors import ConfigError
+from mepnet.cli import (
+    INTERRUPTED,
+    ArgumentParser,
+    quiet_interrupts_in_workers,
+    run,
+    workers_ignore_interrupts,
+)
+from mepnet.errors import ConfigError, OutputError
 from mepnet.files import remove_stale_temporaries
 from mepnet.geom import BrickGeomError
 from mepnet.manual.io import write_manual
@@ -50,7 +56,7 @@ def check_generator_settings(config: dict[str, Any]) -> None:
     before any worker starts; a bad setting is a :class:`~mepnet.errors.ConfigError`."""
     from mepnet import _brickgeom as _bg
 
-    probe = {**config, "image_size": 16, "components": (1, 2), "p_submodule": 0.0}
+    probe = {**config, "image_size": 16}
     try:
         _bg.synth_manual(0, probe)
     except (BrickGeomError, ValueError, TypeError, OverflowError) as e:
@@ -70,7 +76,10 @@ def generate_one(seed: int, out: Path, config: dict[str, Any], ldraw_dir: str | 
     source = {"kind": "synthetic", "seed": seed, "generator": config, "renderer": "brickgeom"}
     if ldraw_dir is not None:
         source["part_geometry"] = "ldraw"
-    write_manual(manual_dir(out, seed), manual, source, writer="mepnet.synth")
+    try:
+        write_manual(manual_dir(out, seed), manual, source, writer="mepnet.synth")
+    except OutputError:
+        pass  # another run into the same folder wrote this manual meanwhile (the same bytes)
     return len(manual["main"]["steps"]) + sum(
         len(s["build"]["steps"]) for s in manual["submodules"]
     )
@@ -90,7 +99,7 @@ def _job(args: tuple[int, str, dict[str, Any], str | None]) -> tuple[int, int]:
 
 def build_parser() -> argparse.ArgumentParser:
     """The ``python -m mepnet.synth`` argument parser."""
-    ap = argparse.ArgumentParser(prog="python -m mepnet.synth", description=__doc__.splitlines()[0])
+    ap = ArgumentParser(prog="python -m mepnet.synth", description=__doc__.splitlines()[0])
     ap.add_argument("--out", required=True, type=Path, help="output folder")
     ap.add_argument("--manuals", required=True, type=int, help="number of manuals")
     ap.add_argument("--seed", type=int, default=0, help="first seed (default 0)")
@@ -151,7 +160,12 @@ def _main(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     bar = tqdm(
-        total=args.manuals, initial=done, unit="manual", disable=args.no_progress, file=sys.stderr
+        total=args.manuals,
+        initial=done,
+        unit="manual",
+        disable=args.no_progress,
+        leave=False,  # an error then stays one line
+        file=sys.stderr,
     )
     steps = 0
     t0 = time.perf_counter()

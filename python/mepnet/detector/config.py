@@ -142,7 +142,10 @@ class ModelConfig:
             raise ConfigError(f"{name}: not valid JSON ({e})") from None
         if not isinstance(d, dict):
             raise ConfigError(f"{name}: a model configuration must be a JSON object")
-        return cls.from_dict(d)
+        try:
+            return cls.from_dict(d)
+        except (ConfigError, TypeError) as e:
+            raise ConfigError(f"{name}: {e}") from None
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-able form."""

@@ -16,8 +16,8 @@ from typing import Any
 import torch
 from mepnet.detector.config import ModelConfig
 from mepnet.detector.net import MEPNet, build_model
-from mepnet.errors import CheckpointError
-from mepnet.files import atomic_write_bytes, atomic_write_json
+from mepnet.errors import CheckpointError, MepnetError
+from mepnet.files import atomic_write_bytes, atomic_write_json, regular_input
 from safetensors import SafetensorError
 from safetensors.torch import load as _st_load
 from safetensors.torch import save as _st_save
@@ -47,6 +47,11 @@ def read_safetensors(
     """Tensors (on the CPU) and header metadata of a safetensors file; :class:`CheckpointError`
     naming the file for anything that is not one."""
     path = Path(path)
+    if path.exists():
+        try:
+            regular_input(path, "weights file")
+        except MepnetError as e:
+            raise CheckpointError(str(e)) from None
     try:
         data = path.read_bytes()
     except FileNotFoundError:
@@ -104,13 +109,15 @@ def load_model_weights(
     tensors, meta = read_safetensors(path)
     try:
         doc = json.loads(meta[META_KEY])
-        if doc.get("format") != MODEL_FORMAT:
-            raise KeyError("format")
-        return tensors, dict(doc["model_config"])
     except (KeyError, TypeError, json.JSONDecodeError):
-        raise CheckpointError(
-            f"{path}: not a mepnet model file (no model config in its header)"
-        ) from None
+        doc = None
+    if (
+        not isinstance(doc, dict)
+        or doc.get("format") != MODEL_FORMAT
+        or not isinstance(doc.get("model_config"), dict)
+    ):
+        raise CheckpointError(f"{path}: not a mepnet model file (no model config in its header)")
+    return tensors, dict(doc["model_config"])
 
 
 def load_model(
@@ -121,7 +128,7 @@ def load_model(
     tensors, cfg_dict = load_model_weights(path)
     try:
         cfg = ModelConfig.from_dict(cfg_dict)
-    except (TypeError, ValueError) as e:
+    except (TypeError, ValueError, AttributeError) as e:
         raise CheckpointError(f"{path}: model config in the header is invalid ({e})") from None
     except RuntimeError as e:  # a size torch refuses although it passed the checks
         raise CheckpointError(f"{path}: model config in the header cannot be built ({e})") from None

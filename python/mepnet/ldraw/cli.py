@@ -17,7 +17,7 @@ import os
 from pathlib import Path
 from typing import Any
 
-from mepnet.cli import run
+from mepnet.cli import ArgumentParser, run
 from mepnet.errors import ConfigError
 from mepnet.files import atomic_write_text, check_output_file
 from mepnet.ldraw.io import inspect, read
@@ -75,9 +75,13 @@ def _markdown(infos: list[dict[str, Any]]) -> str:
     return "\n".join(rows) + "\n"
 
 
+#: The ``written_by`` mark of ``info --json`` reports (the files it may replace).
+INFO_WRITER = "mepnet.ldraw info"
+
+
 def _cmd_info(args: argparse.Namespace) -> int:
     if args.json:
-        check_output_file(args.json)
+        check_output_file(args.json, INFO_WRITER)
     infos = []
     for path in args.files:
         info = inspect(read(path))
@@ -87,7 +91,8 @@ def _cmd_info(args: argparse.Namespace) -> int:
     if args.markdown:
         print(_markdown(infos), end="")
     if args.json:
-        atomic_write_text(args.json, json.dumps(infos, indent=1) + "\n")
+        doc = {"written_by": INFO_WRITER, "files": infos}
+        atomic_write_text(args.json, json.dumps(doc, indent=1) + "\n")
     return 0
 
 
@@ -112,7 +117,7 @@ def _cmd_to_manual(args: argparse.Namespace) -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     """The ``python -m mepnet.ldraw`` argument parser."""
-    ap = argparse.ArgumentParser(
+    ap = ArgumentParser(
         prog="python -m mepnet.ldraw", description="LDraw inspection and conversion."
     )
     sub = ap.add_subparsers(dest="command", required=True)

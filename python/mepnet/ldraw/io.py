@@ -28,6 +28,7 @@ from mepnet._brickgeom import (
     StepCheck,
     StepItem,
 )
+from mepnet.files import regular_input
 
 Matrix = tuple[tuple[float, float, float], tuple[float, float, float], tuple[float, float, float]]
 IDENTITY: Matrix = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
@@ -35,7 +36,7 @@ IDENTITY: Matrix = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
 
 def read(path: str | os.PathLike[str]) -> LDrawFile:
     """Read an .ldr or .mpd file. Raises :class:`mepnet.LDrawError` naming file and line."""
-    return _bg.read_ldraw(os.fspath(path))
+    return _bg.read_ldraw(os.fspath(regular_input(path, "LDraw file")))
 
 
 def parse(data: bytes, file_name: str) -> LDrawFile:

@@ -12,7 +12,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from mepnet.cli import run
+from mepnet.cli import ArgumentParser, run
 from mepnet.manual.io import strip_manual
 
 PROG = "python -m mepnet.manual"
@@ -20,7 +20,7 @@ PROG = "python -m mepnet.manual"
 
 def build_parser() -> argparse.ArgumentParser:
     """The ``python -m mepnet.manual`` argument parser."""
-    ap = argparse.ArgumentParser(prog=PROG, description=__doc__.splitlines()[0])
+    ap = ArgumentParser(prog=PROG, description=__doc__.splitlines()[0])
     sub = ap.add_subparsers(dest="command", required=True)
     st = sub.add_parser("strip", help="write the manual without its answers (as users have it)")
     st.add_argument("manual", type=Path, metavar="MANUAL_DIR", help="a manual folder")

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mepnet.errors import ManualFormatError
+from mepnet.errors import ManualFormatError, MepnetError
 
 #: The largest image mepnet reads (pixels): 8192 x 8192.
 MAX_PIXELS = 8192 * 8192
@@ -25,6 +25,12 @@ _RESIZE_NOTED: set[Path] = set()
 def _open(path: Path, what: str):  # type: ignore[no-untyped-def]
     from PIL import Image, UnidentifiedImageError
 
+    from mepnet.files import regular_input
+
+    try:
+        regular_input(path, what)
+    except MepnetError as e:
+        raise ManualFormatError(str(e)) from None
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("error", Image.DecompressionBombWarning)

@@ -23,7 +23,7 @@ import numpy as np
 
 from mepnet import _brickgeom as _bg
 from mepnet.errors import ManualFormatError
-from mepnet.files import atomic_folder
+from mepnet.files import atomic_folder, regular_input
 from mepnet.manual.answers import (
     Answers,
     BuildAnswers,
@@ -49,6 +49,8 @@ VERSION = 2
 MAX_COORD = 1 << 20
 #: The largest image side a manual may state.
 MAX_SIDE = 8192
+#: The largest manual.json mepnet reads.
+MAX_JSON_BYTES = 256 << 20
 #: The most instances a step may add, and components a build may hold.
 MAX_COUNT = 100_000
 
@@ -107,8 +109,15 @@ class _At:
     def file(self, folder: Path, v: Any, what: str) -> Path:
         name = self.str(v, what)
         p = PurePosixPath(name)
-        if p.is_absolute() or ".." in p.parts or "\\" in name:
-            raise self.fail(f"{what} {name!r} must be a file name inside the manual folder")
+        if (
+            p.is_absolute()
+            or not p.parts
+            or ".." in p.parts
+            or "\\" in name
+            or "\x00" in name
+            or any(len(part.encode("utf-8", "surrogateescape")) > 255 for part in p.parts)
+        ):
+            raise self.fail(f"{what} {name[:80]!r} must be a file name inside the manual folder")
         return folder / name
 
 
@@ -412,6 +421,32 @@ class _Reader:
         if listed != viewed or len(set(listed)) != len(listed):
             raise at.fail("the step's instances and their views do not match")
 
+    def _check_geometry(self, manual: Manual) -> None:
+        """The answers describe real shapes: no brick of a submodule and no instance of a build
+        overlaps another (an answer that collides is not a manual anyone could build)."""
+        ans = manual.answers
+        if ans is None:
+            return
+        for k, shape in enumerate(ans.shapes):
+            asm = _bg.Assembly()
+            for j, (part, yaw, t, colour) in enumerate(shape.bricks):
+                try:
+                    asm.add(_bg.Component.primitive(part), yaw, t, colour)
+                except _bg.BrickGeomError as e:
+                    raise self.top.fail(f"answers submodule {k} brick {j}: {e}") from None
+        components = ans.components(manual)
+        for key, _ in manual.builds():
+            b = ans.build(key)
+            asm = _bg.Assembly()
+            for st in b.steps:
+                for v in st.views:
+                    inst = b.instances[v.id]
+                    try:
+                        asm.add(components[inst.component], inst.yaw, inst.t, inst.colour)
+                    except _bg.BrickGeomError as e:
+                        where = "answers" if key is None else f"answers submodule {key}"
+                        raise self.top.fail(f"{where} instance {v.id}: {e}") from None
+
     def _check_tree(self, manual: Manual) -> None:
         """Submodules are used only by later builds (no cycles) and every instance id is added
         by exactly one step."""
@@ -425,6 +460,7 @@ class _Reader:
                         )
         if manual.answers is None:
             return
+        self._check_geometry(manual)
         for k, (b, ans) in enumerate(
             [
                 (manual.main, manual.answers.main),
@@ -444,12 +480,15 @@ def load_manual(folder: str | os.PathLike[str]) -> Manual:
     path = folder / "manual.json"
     if not folder.is_dir():
         raise ManualFormatError(f"{folder}: not a folder")
+    if not path.exists():
+        raise ManualFormatError(f"{folder}: no manual.json (not a manual folder)")
+    regular_input(path, "manual.json")
+    if path.stat().st_size > MAX_JSON_BYTES:
+        raise ManualFormatError(f"{path}: larger than {MAX_JSON_BYTES >> 20} MB, not a manual")
     try:
         raw = path.read_bytes()
-    except FileNotFoundError:
-        raise ManualFormatError(f"{folder}: no manual.json (not a manual folder)") from None
-    except IsADirectoryError:
-        raise ManualFormatError(f"{path}: is a folder, not a file") from None
+    except OSError as e:
+        raise ManualFormatError(f"{path}: cannot read ({e.strerror or e})") from None
     try:
         d = json.loads(raw.decode("utf-8"))
     except UnicodeDecodeError as e:

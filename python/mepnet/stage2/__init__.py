@@ -77,7 +77,7 @@ def make_predictor(
         if lift not in LIFTS:
             raise ConfigError(f"unknown lift '{lift}' (choose from {', '.join(LIFTS)})")
         path = Path(weights or bundled_weights())
-        if not path.is_file():
+        if not path.exists():
             raise CheckpointError(f"{path}: detector weights not found")
         model, cfg = load_model(path)
         return MEPNetPredictor(model, cfg, lift=lift)

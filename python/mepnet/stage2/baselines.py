@@ -62,8 +62,9 @@ class OraclePredictor(AnswerReader):
     def predict_with_answers(self, ctx: StepContext, truth: StepTruth) -> list[Prediction]:
         # noise drawn per step image (seed, manual, file), so a step gets the same jitter in
         # every mode and order of evaluation
-        key = f"{ctx.step.image_path.parent.name}/{ctx.step.image_path.name}".encode()
-        rng = np.random.default_rng([self.seed, zlib.crc32(key)])
+        key = f"{ctx.step.image_path.parent.name}/{ctx.step.image_path.name}"
+        key = key.encode("utf-8", "surrogateescape")  # file names need not be UTF-8
+        rng = np.random.default_rng([self.seed, zlib.crc32(key)])  # type: ignore[arg-type]
         return lift_keypoints(ctx, truth_detections(ctx, truth, self.sigma, rng))
 
 

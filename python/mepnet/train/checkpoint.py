@@ -99,10 +99,13 @@ def load_checkpoint(
         raise CheckpointError(
             f"{path}: not a mepnet checkpoint (no training state in its header)"
         ) from None
+    if not isinstance(doc, dict):
+        raise CheckpointError(f"{path}: not a mepnet checkpoint (its header is not an object)")
     if doc.get("format") != CHECKPOINT_FORMAT:
         raise CheckpointError(f"{path}: format is {doc.get('format')!r}, not {CHECKPOINT_FORMAT}")
     if doc.get("version") != VERSION:
         raise CheckpointError(f"{path}: checkpoint version {doc.get('version')!r} not supported")
+    _check_doc(path, doc)
     model_state = {k[len("model/") :]: v for k, v in tensors.items() if k.startswith("model/")}
     optim_tensors = {k: v for k, v in tensors.items() if k.startswith("optim/")}
     try:
@@ -119,3 +122,25 @@ def load_checkpoint(
             lacking = ", ".join(sorted(full_keys - set(s)))
             raise CheckpointError(f"{path}: missing tensors optim/{index}/{{{lacking}}}")
     return model_state, optimizer_state, doc
+
+
+def _check_doc(path: Path, doc: dict[str, Any]) -> None:
+    """The training state's fields, checked before anything uses them."""
+
+    def bad(what: str) -> CheckpointError:
+        return CheckpointError(f"{path}: malformed training state ({what})")
+
+    step = doc.get("step")
+    if isinstance(step, bool) or not isinstance(step, int) or step < 0:
+        raise bad(f"step {step!r} is not a count of steps")
+    for key in ("train_config", "model_config", "scheduler", "optimizer"):
+        if not isinstance(doc.get(key), dict):
+            raise bad(f"{key} is not an object")
+    ranks = doc.get("ranks")
+    if not isinstance(ranks, list) or not ranks or not all(isinstance(r, dict) for r in ranks):
+        raise bad("ranks is not a list of objects")
+    if doc.get("best") is not None and not isinstance(doc["best"], dict):
+        raise bad("best is not an object")
+    loss = doc.get("last_train_loss")
+    if loss is not None and (isinstance(loss, bool) or not isinstance(loss, (int, float))):
+        raise bad("last_train_loss is not a number")

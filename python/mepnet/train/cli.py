@@ -24,6 +24,7 @@ from dataclasses import fields, replace
 from pathlib import Path
 from typing import Any
 
+from mepnet.cli import ArgumentParser
 from mepnet.cli import run as run_cli
 from mepnet.detector.config import ModelConfig
 from mepnet.errors import CheckpointError, ConfigError, OutputError
@@ -51,7 +52,25 @@ RUN_FILES = (
     "metrics.csv",
     "metrics.json",
     "curves.png",
+    ".mepnet-train.lock",
 )
+_LOCKS: list[Any] = []
+
+
+def _lock(out: Path) -> None:
+    """One run at a time per --out: an exclusive lock held until the process ends."""
+    import fcntl
+
+    f = open(out / ".mepnet-train.lock", "a")  # noqa: SIM115 (held for the process lifetime)
+    try:
+        fcntl.flock(f.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        f.close()
+        raise OutputError(
+            f"{out}: another training run is writing into it (wait for it or choose another --out)"
+        ) from None
+    _LOCKS.append(f)
+
 
 CHOICES = {
     "schedule": ("cosine", "plateau"),
@@ -83,7 +102,7 @@ def _field_flag(f: Any) -> tuple[str, dict[str, Any]]:
 
 def build_parser() -> argparse.ArgumentParser:
     """The ``python -m mepnet.train`` argument parser: one flag per :class:`TrainConfig` field."""
-    ap = argparse.ArgumentParser(
+    ap = ArgumentParser(
         prog="python -m mepnet.train",
         description=__doc__.splitlines()[0],
     )
@@ -165,8 +184,10 @@ def _main(args: argparse.Namespace) -> int:
             f"{out}: holds files mepnet.train did not write (choose a new --out; nothing was changed)"
         )
     out.mkdir(parents=True, exist_ok=True)
-    if os.environ.get("RANK", "0") == "0" and not (out / MANIFEST).is_file():
-        atomic_write_json(out / MANIFEST, {"writer": "mepnet.train", "files": list(RUN_FILES)})
+    if os.environ.get("RANK", "0") == "0":
+        _lock(out)
+        if not (out / MANIFEST).is_file():
+            atomic_write_json(out / MANIFEST, {"writer": "mepnet.train", "files": list(RUN_FILES)})
     if ckpt is None and args.resume:
         print(f"mepnet.train: no checkpoint in {out}; starting from step 0", file=sys.stderr)
     return run(

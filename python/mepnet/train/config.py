@@ -4,6 +4,8 @@ and the checks that run before training starts."""
 from __future__ import annotations
 
 import json
+import math
+import os
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any
@@ -73,9 +75,39 @@ class TrainConfig:
     threads: int = _f(0, "torch CPU threads per process (0: torch's default)", resumable=True)
     progress: bool = _f(True, "progress bar", resumable=True)
 
+    def __post_init__(self) -> None:
+        """Every setting has the type of its default (a config file can hold anything)."""
+        for f in fields(self):
+            v, default = getattr(self, f.name), f.default
+            flag = "--" + f.name.replace("_", "-")
+            if isinstance(default, bool):
+                ok = isinstance(v, bool)
+                want = "true or false"
+            elif isinstance(default, int):
+                ok = isinstance(v, int) and not isinstance(v, bool)
+                want = "an integer"
+            elif isinstance(default, float):
+                ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+                want = "a finite number"
+            elif isinstance(default, tuple):
+                kind = int if f.name == "generate_seeds" else str
+                ok = isinstance(v, tuple) and all(
+                    isinstance(x, kind) and not isinstance(x, bool) for x in v
+                )
+                if f.name == "generate_seeds":
+                    ok = ok and len(v) == 2
+                want = "two integers" if f.name == "generate_seeds" else "a list of strings"
+            else:  # a string, or a path that may be None
+                ok = isinstance(v, str) or (default is None and v is None)
+                want = "a string"
+            if not ok:
+                raise ConfigError(f"setting {f.name} ({flag}) must be {want}, got {v!r}")
+
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> TrainConfig:
         """From a JSON object; unknown keys are an error, lists become tuples."""
+        if not isinstance(d, dict):
+            raise ConfigError(f"training settings must be a JSON object, got {type(d).__name__}")
         known = {f.name for f in fields(cls)}
         unknown = sorted(set(d) - known)
         if unknown:
@@ -146,6 +178,23 @@ def validate(cfg: TrainConfig) -> None:
             raise ConfigError(f"--{name.replace('_', '-')} must be at least 1")
     if cfg.steps < 0 or cfg.epochs < 0 or cfg.workers < 0 or cfg.threads < 0:
         raise ConfigError("--steps, --epochs, --workers and --threads must not be negative")
+    if cfg.warmup_steps < 0 or cfg.plateau_patience < 0 or cfg.seed < 0:
+        raise ConfigError("--warmup-steps, --plateau-patience and --seed must not be negative")
+    if not cfg.lr > 0:
+        raise ConfigError(f"--lr must be > 0, got {cfg.lr}")
+    if cfg.weight_decay < 0 or cfg.grad_clip < 0:
+        raise ConfigError("--weight-decay and --grad-clip must not be negative")
+    if not 0 < cfg.plateau_factor < 1:
+        raise ConfigError(f"--plateau-factor must be within (0, 1), got {cfg.plateau_factor}")
+    max_threads = 4 * (os.cpu_count() or 1)
+    if cfg.threads > max_threads:
+        raise ConfigError(
+            f"--threads {cfg.threads}: at most {max_threads} on this machine (4 per CPU)"
+        )
+    if cfg.generate_size and not 16 <= cfg.generate_size <= 2048:
+        raise ConfigError(f"--generate-size must be 0 or within 16..2048, got {cfg.generate_size}")
+    if cfg.val_cd_points < 1:
+        raise ConfigError(f"--val-cd-points must be at least 1, got {cfg.val_cd_points}")
     if not cfg.data and cfg.steps < 1:
         raise ConfigError("on-the-fly generation (no --data) needs --steps")
     if cfg.val_lift not in LIFTS:

@@ -361,6 +361,7 @@ def train(
         initial=start,
         unit="step",
         disable=not (cfg.progress and d.main),
+        leave=False,  # an error then stays one line
         file=sys.stderr,
         dynamic_ncols=True,
     )

@@ -107,6 +107,31 @@ impl SynthConfig {
                 self.visibility
             ));
         }
+        for (name, p) in [("p_submodule", self.p_submodule), ("p_stack", self.p_stack)] {
+            if !(0.0..=1.0).contains(&p) {
+                return bad(format!("{name} must be a probability in [0, 1], got {p}"));
+            }
+        }
+        for (name, (centre, half)) in [("elevation", self.elevation), ("azimuth", self.azimuth)] {
+            if !centre.is_finite() || !half.is_finite() || half < 0.0 {
+                return bad(format!(
+                    "{name} must be (centre, half range) with a finite centre and half range >= 0, got ({centre}, {half})"
+                ));
+            }
+        }
+        if !(self.elevation.0.abs() + self.elevation.1 <= 90.0) {
+            return bad(format!(
+                "elevation {:?} must stay within -90..90 degrees",
+                self.elevation
+            ));
+        }
+        let (lo, hi) = self.fill;
+        if !(lo > 0.0 && lo <= hi && hi <= 1.0) {
+            return bad(format!(
+                "fill range {:?} must satisfy 0 < low <= high <= 1",
+                self.fill
+            ));
+        }
         RenderOptions {
             supersample: self.supersample,
             ..RenderOptions::new(self.image_size, self.image_size)
