@@ -119,14 +119,15 @@ impl SynthConfig {
                 ));
             }
         }
-        if !(self.elevation.0.abs() + self.elevation.1 <= 90.0) {
+        if self.elevation.0.abs() + self.elevation.1 > 90.0 {
             return bad(format!(
                 "elevation {:?} must stay within -90..90 degrees",
                 self.elevation
             ));
         }
         let (lo, hi) = self.fill;
-        if !(lo > 0.0 && lo <= hi && hi <= 1.0) {
+        let fill_ok = lo > 0.0 && lo <= hi && hi <= 1.0; // false for NaN too
+        if !fill_ok {
             return bad(format!(
                 "fill range {:?} must satisfy 0 < low <= high <= 1",
                 self.fill
