@@ -254,16 +254,9 @@ def _shape_key(placed: list[tuple[_bg.Component, int, tuple[int, int, int], int]
 
 
 def part_cells(part: str, yaw: int, t: tuple[int, int, int]) -> tuple[tuple[int, ...], ...]:
-    """The voxels a part occupies at a pose, sorted."""
-    from mepnet.geom import rotate_lattice
-
-    v = _bg.Component.primitive(part).voxels
-    # a voxel is a cell: rotate its centre (2x to stay on integers), then back to its corner
-    cells = []
-    for x, y, z in v.tolist():
-        cx, cy, cz = rotate_lattice((2 * x + 1, 2 * y + 1, 2 * z + 1), yaw)
-        cells.append(((cx - 1) // 2 + t[0], (cy - 1) // 2 + t[1], (cz - 1) // 2 + t[2]))
-    return tuple(sorted(cells))
+    """The voxels a part occupies at a pose, sorted (placed by the core)."""
+    placed = _bg.Component.from_placed("brick", [(_bg.Component.primitive(part), yaw, t, 16)])
+    return tuple(sorted(tuple(v) for v in placed.voxels.tolist()))
 
 
 def built_exactly(run: ManualRun) -> bool | None:
