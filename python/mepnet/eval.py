@@ -47,7 +47,7 @@ from mepnet.cli import run as run_cli
 from mepnet.errors import ConfigError, ManualFormatError
 from mepnet.files import atomic_write_json, check_output_file
 from mepnet.manual import ComponentRef, answers_of, iter_manual_dirs, load_manual
-from mepnet.plan import accuracy, built_exactly, run_manual
+from mepnet.plan import accuracy, built_exactly, run_manual, shape_key
 from mepnet.stage2 import LIFTS, PREDICTORS, Prediction, Predictor, make_predictor
 
 #: The ``written_by`` mark of the metrics files ``--json`` writes (and may replace).
@@ -159,6 +159,16 @@ class Scorer:
         return all_ok
 
 
+def _same_shape(a: _bg.Component, b: _bg.Component) -> bool:
+    """Whether two components are the same shape (a part: the same part; a submodule: the same
+    bricks, whatever their order or the yaws of symmetric parts)."""
+    if a.name != b.name or a.is_submodule != b.is_submodule:
+        return False
+    if not a.is_submodule or a is b or a.bricks == b.bricks:
+        return True
+    return shape_key([(a, 0, (0, 0, 0), 16)]) == shape_key([(b, 0, (0, 0, 0), 16)])
+
+
 def _canonical(
     pred: Sequence[Placement], gt: Sequence[Placement]
 ) -> tuple[list[Placement], list[Placement]]:
@@ -172,8 +182,7 @@ def _canonical(
                 j
                 for j, (gc, gy, gt_t) in enumerate(gt)
                 if j not in used
-                and gc.name == c.name
-                and gc.bricks == c.bricks  # a predicted submodule may differ from the true one
+                and _same_shape(gc, c)  # a predicted submodule may differ from the true one
                 and c.same_placement(y, t, gy, gt_t)
             ),
             None,

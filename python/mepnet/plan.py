@@ -240,7 +240,7 @@ def accuracy(run: ManualRun) -> tuple[int, int]:
     return right, total
 
 
-def _shape_key(placed: list[tuple[_bg.Component, int, tuple[int, int, int], int]]) -> list[Any]:
+def shape_key(placed: list[tuple[_bg.Component, int, tuple[int, int, int], int]]) -> list[Any]:
     """A final shape as comparable data: per brick (submodules expanded) its part, colour and
     occupied voxels, sorted, so that symmetric parts placed either way compare equal."""
     if not placed:
@@ -268,7 +268,7 @@ def built_exactly(run: ManualRun) -> bool | None:
     truth_comps = answers.components(run.manual)
     truth = [(truth_comps[i.component], i.yaw, i.t, i.colour) for i in answers.main.instances]
     built = [(run.components[r], y, t, c) for r, y, t, c in run.main.placed()]
-    return _shape_key(built) == _shape_key(truth)
+    return shape_key(built) == shape_key(truth)
 
 
 def plan_json(run: ManualRun) -> dict[str, Any]:

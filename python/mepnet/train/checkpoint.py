@@ -105,7 +105,6 @@ def load_checkpoint(
         raise CheckpointError(f"{path}: format is {doc.get('format')!r}, not {CHECKPOINT_FORMAT}")
     if doc.get("version") != VERSION:
         raise CheckpointError(f"{path}: checkpoint version {doc.get('version')!r} not supported")
-    _check_doc(path, doc)
     model_state = {k[len("model/") :]: v for k, v in tensors.items() if k.startswith("model/")}
     optim_tensors = {k: v for k, v in tensors.items() if k.startswith("optim/")}
     try:
@@ -124,8 +123,9 @@ def load_checkpoint(
     return model_state, optimizer_state, doc
 
 
-def _check_doc(path: Path, doc: dict[str, Any]) -> None:
-    """The training state's fields, checked before anything uses them."""
+def check_training_state(path: Path, doc: dict[str, Any]) -> None:
+    """The fields of a training run's checkpoint document (``mepnet.train`` writes them),
+    checked before anything uses them."""
 
     def bad(what: str) -> CheckpointError:
         return CheckpointError(f"{path}: malformed training state ({what})")

@@ -30,7 +30,7 @@ from mepnet.detector.config import ModelConfig
 from mepnet.errors import CheckpointError, ConfigError, OutputError
 from mepnet.files import MANIFEST, atomic_write_json
 from mepnet.stage2.base import LIFTS
-from mepnet.train.checkpoint import load_checkpoint
+from mepnet.train.checkpoint import check_training_state, load_checkpoint
 from mepnet.train.config import (
     TrainConfig,
     check_resumable,
@@ -54,14 +54,14 @@ RUN_FILES = (
     "curves.png",
     ".mepnet-train.lock",
 )
-_LOCKS: list[Any] = []
 
 
-def _lock(out: Path) -> None:
-    """One run at a time per --out: an exclusive lock held until the process ends."""
+def _lock(out: Path) -> Any:
+    """One run at a time per --out: an exclusive lock on a file in it, held while the returned
+    file is open."""
     import fcntl
 
-    f = open(out / ".mepnet-train.lock", "a")  # noqa: SIM115 (held for the process lifetime)
+    f = open(out / ".mepnet-train.lock", "a")  # noqa: SIM115 (the caller closes it)
     try:
         fcntl.flock(f.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
     except BlockingIOError:
@@ -69,7 +69,7 @@ def _lock(out: Path) -> None:
         raise OutputError(
             f"{out}: another training run is writing into it (wait for it or choose another --out)"
         ) from None
-    _LOCKS.append(f)
+    return f
 
 
 CHOICES = {
@@ -143,6 +143,7 @@ def resolve(args: argparse.Namespace, check: bool = True) -> tuple[TrainConfig, 
         ckpt = load_checkpoint(out)
         path = out / "checkpoint.safetensors"
         doc = ckpt[2]
+        check_training_state(path, doc)
         try:
             saved = TrainConfig.from_dict(doc["train_config"])
             saved_model = ModelConfig.from_dict(doc["model_config"])
@@ -184,18 +185,21 @@ def _main(args: argparse.Namespace) -> int:
             f"{out}: holds files mepnet.train did not write (choose a new --out; nothing was changed)"
         )
     out.mkdir(parents=True, exist_ok=True)
-    if os.environ.get("RANK", "0") == "0":
-        _lock(out)
-        if not (out / MANIFEST).is_file():
+    lock = _lock(out) if os.environ.get("RANK", "0") == "0" else None
+    try:
+        if lock is not None and not (out / MANIFEST).is_file():
             atomic_write_json(out / MANIFEST, {"writer": "mepnet.train", "files": list(RUN_FILES)})
-    if ckpt is None and args.resume:
-        print(f"mepnet.train: no checkpoint in {out}; starting from step 0", file=sys.stderr)
-    return run(
-        cfg,
-        model_cfg,
-        ckpt,
-        generator=generator,
-        init=init,
-        debug_checksums=args.debug_checksums,
-        kill_at_step=args.debug_kill_at_step,
-    )
+        if ckpt is None and args.resume:
+            print(f"mepnet.train: no checkpoint in {out}; starting from step 0", file=sys.stderr)
+        return run(
+            cfg,
+            model_cfg,
+            ckpt,
+            generator=generator,
+            init=init,
+            debug_checksums=args.debug_checksums,
+            kill_at_step=args.debug_kill_at_step,
+        )
+    finally:
+        if lock is not None:
+            lock.close()  # (closing releases the lock)

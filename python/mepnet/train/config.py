@@ -180,8 +180,8 @@ def validate(cfg: TrainConfig) -> None:
         raise ConfigError("--steps, --epochs, --workers and --threads must not be negative")
     if cfg.warmup_steps < 0 or cfg.plateau_patience < 0 or cfg.seed < 0:
         raise ConfigError("--warmup-steps, --plateau-patience and --seed must not be negative")
-    if not cfg.lr > 0:
-        raise ConfigError(f"--lr must be > 0, got {cfg.lr}")
+    if cfg.lr < 0:
+        raise ConfigError(f"--lr must not be negative, got {cfg.lr}")
     if cfg.weight_decay < 0 or cfg.grad_clip < 0:
         raise ConfigError("--weight-decay and --grad-clip must not be negative")
     if not 0 < cfg.plateau_factor < 1:
