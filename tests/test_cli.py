@@ -675,3 +675,61 @@ def test_errors_in_data_workers_are_one_line(tmp_path: Path):
         "--no-progress",
     )
     one_line_error(r, "unreadable step image")
+
+
+def test_notes_do_not_add_lines_to_an_error(tmp_path: Path):
+    """A note (64 px images resized for the detector) is said only when the run succeeds."""
+    out = tmp_path / "syn"
+    r = cmd(
+        "mepnet.synth",
+        "--out",
+        out,
+        "--manuals",
+        "1",
+        "--seed",
+        "5",
+        "--size",
+        "64",
+        "--no-progress",
+    )
+    assert r.returncode == 0, r.stderr
+    manual = next(out.iterdir())
+    r = cmd("mepnet.infer", manual, "--out", tmp_path / "ok", "--no-progress")
+    assert r.returncode == 0 and "resized to the detector's" in r.stderr, r.stderr
+    (manual / "step_002.png").write_bytes(b"garbage")
+    r = cmd("mepnet.infer", manual, "--out", tmp_path / "bad", "--no-progress")
+    one_line_error(r, "step_002.png")
+
+
+def test_a_closed_pipe_ends_quietly(tmp_path: Path):
+    tall = tmp_path / "tall.ldr"  # 2,000 steps: far more output than a pipe buffers
+    tall.write_text(
+        "".join(f"1 4 0 {-24 * i} 0 1 0 0 0 1 0 0 0 1 3005.dat\n0 STEP\n" for i in range(2000))
+    )
+    p = subprocess.Popen(
+        [sys.executable, "-m", "mepnet.ldraw", "info", "--steps", str(tall)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+    )
+    assert p.stdout is not None and p.stderr is not None
+    p.stdout.readline()
+    p.stdout.close()  # as `| head -1` does
+    err = p.stderr.read().decode()
+    p.stderr.close()
+    assert p.wait(timeout=60) == 141, err
+    assert "Traceback" not in err and "error" not in err, err
+
+
+def test_infer_dot_names_the_folder(tmp_path: Path):
+    import shutil
+
+    shutil.copytree(bundled(), tmp_path / "m")
+    r = subprocess.run(
+        [sys.executable, "-m", "mepnet.infer", ".", "--predictor", "oracle", "--no-progress"],
+        capture_output=True,
+        text=True,
+        cwd=tmp_path / "m",
+        timeout=300,
+    )
+    assert r.returncode == 0, r.stderr
+    assert (tmp_path / "m" / "m-plan" / "plan.json").is_file()

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import os
 import signal
 import sys
 from collections.abc import Callable, Iterator
@@ -30,6 +31,20 @@ class ArgumentParser(argparse.ArgumentParser):
         raise SystemExit(BAD_INPUT)
 
 
+#: Notes of the command running (None outside :func:`run`): said at the end of a successful
+#: run, so that a run stopped by bad input or Ctrl-C ends with exactly one line.
+_NOTES: list[str] | None = None
+
+
+def note(message: str) -> None:
+    """Tell the user something worth knowing about a run that goes on (an image resized, a
+    setting capped): on stderr when the command succeeds."""
+    if _NOTES is None:
+        print(f"mepnet: {message}", file=sys.stderr)
+    elif message not in _NOTES:
+        _NOTES.append(message)
+
+
 def fail(prog: str, message: str) -> int:
     """Print ``prog: error: message`` on stderr; returns :data:`BAD_INPUT`."""
     print(f"{prog}: error: {message}", file=sys.stderr)
@@ -49,17 +64,26 @@ def os_error_message(e: OSError) -> str:
     """One line for an OS error: the file it concerns and what went wrong."""
     name = e.filename if e.filename is not None else ""
     text = e.strerror or str(e)
-    return f"{name}: {text}" if name else text
+    return f"{name}: {text}" if name else f"{text} (writing the output)"
 
 
 def run(prog: str, work: Callable[[], int]) -> int:
     """Run ``work`` (a command's body) and map its bad-input errors to exit statuses."""
+    global _NOTES
     for stream in (sys.stdout, sys.stderr):
         # file names need not be UTF-8: print them escaped rather than fail on them
         if hasattr(stream, "reconfigure"):
             stream.reconfigure(errors="backslashreplace")
+    _NOTES = []
     try:
-        return int(work())
+        status = int(work())
+        for message in _NOTES:
+            print(f"{prog}: note: {message}", file=sys.stderr)
+        return status
+    except BrokenPipeError:  # `... | head`: the reader has what it wanted
+        with contextlib.suppress(OSError):
+            sys.stdout = open(os.devnull, "w")  # noqa: SIM115 (no flush error at exit)
+        return 141
     except KeyboardInterrupt:
         print(f"{prog}: interrupted", file=sys.stderr)
         return INTERRUPTED
@@ -73,6 +97,8 @@ def run(prog: str, work: Callable[[], int]) -> int:
         )
     except OSError as e:
         return fail(prog, os_error_message(e))
+    finally:
+        _NOTES = None
 
 
 @contextlib.contextmanager

@@ -225,33 +225,37 @@ def evaluate(
         leave=False,  # an error then stays one line
         file=sys.stderr,
     )
-    for man in manuals:
-        answers = answers_of(man)
-        # teacher-forced: every step on the true shape (the paper's Table 1)
-        run = run_manual(man, predictor, teacher_forced=True, on_step=lambda: bar.update(1))
-        comps = run.components
-        wrong = 0
-        for b in run.builds:
-            truth = answers.build(b.key)
-            scale = _diag([(comps[i.component], i.yaw, i.t) for i in truth.instances])
-            for s in b.steps:
-                assert s.truth is not None
-                scorer.seconds.append(s.seconds)
-                gt = [(i.component, i.yaw, i.t) for i in s.truth.placed()]
-                supported = [v.attach != "unsupported" for v in s.truth.answers.views]
-                wrong += int(not scorer.step(s.predictions, gt, comps, scale, supported))
-        mtc.append(wrong / max(len(man.all_steps()), 1))
-        if autoregressive:
-            # the plan a user gets: every step on the predictor's own earlier placements
-            ar = run_manual(man, predictor, on_step=lambda: bar.update(1))
-            right, total = accuracy(ar)
-            ar_right += right
-            ar_total += total
-            manuals_exact += int(bool(built_exactly(ar)))
-            placed = [(ar.components[r], y, t) for r, y, t, _ in ar.main.placed()]
-            gt_final = [(comps[i.component], i.yaw, i.t) for i in answers.main.instances]
-            set_cd.append(scorer.cd(placed, gt_final, _diag(gt_final)) if placed else float("nan"))
-    bar.close()
+    try:
+        for man in manuals:
+            answers = answers_of(man)
+            # teacher-forced: every step on the true shape (the paper's Table 1)
+            run = run_manual(man, predictor, teacher_forced=True, on_step=lambda: bar.update(1))
+            comps = run.components
+            wrong = 0
+            for b in run.builds:
+                truth = answers.build(b.key)
+                scale = _diag([(comps[i.component], i.yaw, i.t) for i in truth.instances])
+                for s in b.steps:
+                    assert s.truth is not None
+                    scorer.seconds.append(s.seconds)
+                    gt = [(i.component, i.yaw, i.t) for i in s.truth.placed()]
+                    supported = [v.attach != "unsupported" for v in s.truth.answers.views]
+                    wrong += int(not scorer.step(s.predictions, gt, comps, scale, supported))
+            mtc.append(wrong / max(len(man.all_steps()), 1))
+            if autoregressive:
+                # the plan a user gets: every step on the predictor's own earlier placements
+                ar = run_manual(man, predictor, on_step=lambda: bar.update(1))
+                right, total = accuracy(ar)
+                ar_right += right
+                ar_total += total
+                manuals_exact += int(bool(built_exactly(ar)))
+                placed = [(ar.components[r], y, t) for r, y, t, _ in ar.main.placed()]
+                gt_final = [(comps[i.component], i.yaw, i.t) for i in answers.main.instances]
+                set_cd.append(
+                    scorer.cd(placed, gt_final, _diag(gt_final)) if placed else float("nan")
+                )
+    finally:
+        bar.close()  # also on Ctrl-C, before the one-line message
 
     def mean(x: list[float]) -> float | None:
         x = [v for v in x if v == v]

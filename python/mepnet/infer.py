@@ -150,7 +150,7 @@ def run_manual_folder(path: Path, args: argparse.Namespace) -> int:
     from mepnet.stage2 import make_predictor
 
     manual = load_manual(path)
-    out = args.out or Path(f"{path.name}-plan")
+    out = args.out or Path(f"{path.resolve().name}-plan")  # (`infer .` names the folder)
     check_replaceable(out, PLAN_WRITER)  # before the work: never replace what is not ours
     predictor = make_predictor(args.predictor, sigma=args.sigma, weights=args.weights)
     with tqdm(

@@ -23,6 +23,7 @@ from typing import Any
 from mepnet.cli import (
     INTERRUPTED,
     ArgumentParser,
+    note,
     quiet_interrupts_in_workers,
     run,
     workers_ignore_interrupts,
@@ -51,7 +52,7 @@ def read_generator_settings(path: Path) -> dict[str, Any]:
     return {k: tuple(v) if isinstance(v, list) else v for k, v in config.items()}
 
 
-def check_generator_settings(config: dict[str, Any]) -> None:
+def check_generator_settings(config: dict[str, Any], source: Path | None = None) -> None:
     """The one probe of generator settings: generate a tiny manual with them, in this process,
     before any worker starts; a bad setting is a :class:`~mepnet.errors.ConfigError`."""
     from mepnet import _brickgeom as _bg
@@ -60,7 +61,8 @@ def check_generator_settings(config: dict[str, Any]) -> None:
     try:
         _bg.synth_manual(0, probe)
     except (BrickGeomError, ValueError, TypeError, OverflowError) as e:
-        raise ConfigError(f"generator settings: {e}") from None
+        where = f"{source}: " if source is not None else ""
+        raise ConfigError(f"{where}generator settings: {e}") from None
 
 
 def manual_dir(out: Path, seed: int) -> Path:
@@ -148,7 +150,7 @@ def _main(args: argparse.Namespace) -> int:
         probe.unlink()
     except OSError as e:
         raise ConfigError(f"{args.out}: cannot write there ({e.strerror or e})") from None
-    check_generator_settings(config)
+    check_generator_settings(config, args.config)
     # leftovers of killed runs (never those of a run still going into the same folder)
     remove_stale_temporaries(args.out)
     seeds = [
@@ -174,10 +176,9 @@ def _main(args: argparse.Namespace) -> int:
     # interpreter with the extension (tens of MB), and a thousand would exhaust the memory
     workers = min(args.workers, max(len(jobs), 1), MAX_WORKERS_PER_CPU * (os.cpu_count() or 1))
     if workers < args.workers and len(jobs) > workers:
-        print(
-            f"mepnet.synth: using {workers} worker processes, not {args.workers} "
-            f"({MAX_WORKERS_PER_CPU} per CPU at most)",
-            file=sys.stderr,
+        note(
+            f"using {workers} worker processes, not {args.workers} "
+            f"({MAX_WORKERS_PER_CPU} per CPU at most)"
         )
     try:
         if workers == 1:

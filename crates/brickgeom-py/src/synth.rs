@@ -33,25 +33,27 @@ fn config_from(d: Option<&Bound<'_, PyDict>>) -> PyResult<SynthConfig> {
     };
     for (k, v) in d.iter() {
         let key: String = k.extract()?;
+        // a value of the wrong type names its setting (the extraction error alone does not)
+        let named = |e: PyErr| PyValueError::new_err(format!("setting '{key}': {e}"));
         match key.as_str() {
-            "footprint" => c.footprint = v.extract()?,
-            "height" => c.height = v.extract()?,
-            "components" => c.components = v.extract()?,
-            "rounds" => c.rounds = v.extract()?,
-            "p_submodule" => c.p_submodule = v.extract()?,
-            "p_stack" => c.p_stack = v.extract()?,
-            "submodule_bricks" => c.submodule_bricks = v.extract()?,
-            "max_step_instances" => c.max_step_instances = v.extract()?,
-            "max_step_types" => c.max_step_types = v.extract()?,
-            "visibility" => c.visibility = v.extract()?,
-            "elevation" => c.elevation = v.extract()?,
-            "azimuth" => c.azimuth = v.extract()?,
-            "fill" => c.fill = v.extract()?,
-            "image_size" => c.image_size = v.extract()?,
-            "supersample" => c.supersample = v.extract()?,
-            "palette" => c.palette = v.extract()?,
+            "footprint" => c.footprint = v.extract().map_err(named)?,
+            "height" => c.height = v.extract().map_err(named)?,
+            "components" => c.components = v.extract().map_err(named)?,
+            "rounds" => c.rounds = v.extract().map_err(named)?,
+            "p_submodule" => c.p_submodule = v.extract().map_err(named)?,
+            "p_stack" => c.p_stack = v.extract().map_err(named)?,
+            "submodule_bricks" => c.submodule_bricks = v.extract().map_err(named)?,
+            "max_step_instances" => c.max_step_instances = v.extract().map_err(named)?,
+            "max_step_types" => c.max_step_types = v.extract().map_err(named)?,
+            "visibility" => c.visibility = v.extract().map_err(named)?,
+            "elevation" => c.elevation = v.extract().map_err(named)?,
+            "azimuth" => c.azimuth = v.extract().map_err(named)?,
+            "fill" => c.fill = v.extract().map_err(named)?,
+            "image_size" => c.image_size = v.extract().map_err(named)?,
+            "supersample" => c.supersample = v.extract().map_err(named)?,
+            "palette" => c.palette = v.extract().map_err(named)?,
             "parts" => {
-                let ids: Vec<String> = v.extract()?;
+                let ids: Vec<String> = v.extract().map_err(named)?;
                 c.parts = ids
                     .iter()
                     .map(|p| library().get(p).map(|d| d.id))

@@ -135,13 +135,25 @@ impl Grid {
         let mut new_lo = [0; 3];
         let mut new_hi = [0; 3];
         for a in 0..3 {
-            let (l, h) = if empty {
-                (lo[a], hi[a])
+            if empty {
+                new_lo[a] = lo[a] - GROW_MARGIN;
+                new_hi[a] = hi[a] + GROW_MARGIN;
+                continue;
+            }
+            // Only the sides that must move do, and by at least half the current extent, so a
+            // shape that keeps growing one way (a tall column) costs amortised linear copying
+            // instead of a reallocation of the whole box at every step.
+            let step = GROW_MARGIN.max(self.dims[a] as i32 / 2);
+            new_lo[a] = if lo[a] < self.origin[a] {
+                lo[a] - step
             } else {
-                (lo[a].min(self.origin[a]), hi[a].max(cur_hi[a]))
+                self.origin[a]
             };
-            new_lo[a] = l - GROW_MARGIN;
-            new_hi[a] = h + GROW_MARGIN;
+            new_hi[a] = if hi[a] > cur_hi[a] {
+                hi[a] + step
+            } else {
+                cur_hi[a]
+            };
         }
         // Nothing is ever below the ground, so the grid starts at y = 0 at the lowest.
         new_lo[1] = new_lo[1].max(0);

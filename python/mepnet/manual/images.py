@@ -8,12 +8,12 @@ to white), palettes and alpha are flattened onto the page. Images larger than
 
 from __future__ import annotations
 
-import sys
 import warnings
 from pathlib import Path
 
 import numpy as np
 
+from mepnet.cli import note
 from mepnet.errors import ManualFormatError, MepnetError
 
 #: The largest image mepnet reads (pixels): 8192 x 8192.
@@ -83,11 +83,10 @@ def read_step_image(path: Path, size: tuple[int, int] | None, where: str = "") -
     if size is not None and (rgb.shape[1], rgb.shape[0]) != tuple(size):
         if path.parent not in _RESIZE_NOTED:
             _RESIZE_NOTED.add(path.parent)
-            print(
-                f"mepnet: {path}: image is {rgb.shape[1]}x{rgb.shape[0]}, the manual says "
+            note(
+                f"{path}: image is {rgb.shape[1]}x{rgb.shape[0]}, the manual says "
                 f"{size[0]}x{size[1]}; resized (and so are the other step images of this "
-                "manual that differ)",
-                file=sys.stderr,
+                "manual that differ)"
             )
         rgb = np.asarray(
             Image.fromarray(rgb).resize(tuple(size), Image.Resampling.BILINEAR)  # type: ignore[arg-type]

@@ -9,11 +9,11 @@ beliefs) or ``keypoint`` (the paper's keypoint ray search, :mod:`mepnet.stage2.k
 from __future__ import annotations
 
 import dataclasses
-import sys
 
 import numpy as np
 import torch
 
+from mepnet.cli import note
 from mepnet.detector.config import ModelConfig
 from mepnet.detector.decode import decode
 from mepnet.detector.net import MEPNet
@@ -53,10 +53,9 @@ class MEPNetPredictor(Predictor):
         w, h = ctx.image_size
         if (w, h) != (self.cfg.image_size, self.cfg.image_size) and (w, h) not in self._sizes_noted:
             self._sizes_noted.add((w, h))
-            print(
-                f"mepnet: {w}x{h} step images are resized to the detector's "
-                f"{self.cfg.image_size}x{self.cfg.image_size} (keypoints are mapped back)",
-                file=sys.stderr,
+            note(
+                f"{w}x{h} step images are resized to the detector's "
+                f"{self.cfg.image_size}x{self.cfg.image_size} (keypoints are mapped back)"
             )
 
     def detect(

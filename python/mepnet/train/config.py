@@ -229,5 +229,7 @@ def generator_settings(cfg: TrainConfig, model_cfg: ModelConfig) -> dict[str, An
     if cfg.generate_config is not None:
         settings = read_generator_settings(Path(cfg.generate_config))
     settings["image_size"] = cfg.generate_size or model_cfg.image_size
-    check_generator_settings(settings)
+    check_generator_settings(
+        settings, Path(cfg.generate_config) if cfg.generate_config is not None else None
+    )
     return settings

@@ -23,7 +23,7 @@ from torch import nn
 from torch.utils.data import DataLoader
 from tqdm import tqdm
 
-from mepnet.cli import workers_ignore_interrupts
+from mepnet.cli import note, workers_ignore_interrupts
 from mepnet.detector.config import ModelConfig
 from mepnet.detector.losses import total_loss
 from mepnet.detector.net import build_model
@@ -109,10 +109,8 @@ def make_data(
     # MB); batches do not depend on the number of workers, so capping changes nothing else
     workers = min(cfg.workers, MAX_WORKERS_PER_CPU * (os.cpu_count() or 1))
     if workers < cfg.workers and d.main:
-        print(
-            f"mepnet.train: using {workers} data workers, not {cfg.workers} "
-            f"({MAX_WORKERS_PER_CPU} per CPU at most)",
-            file=sys.stderr,
+        note(
+            f"using {workers} data workers, not {cfg.workers} ({MAX_WORKERS_PER_CPU} per CPU at most)"
         )
     loader_kw: dict[str, Any] = {"num_workers": workers, "pin_memory": cuda}
     if workers > 0:
