@@ -28,7 +28,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-from mepnet.errors import InputError, OutputError
+from mepnet.errors import InputError, MepnetError, OutputError
 
 #: The manifest file mepnet writes into every output folder.
 MANIFEST = ".mepnet-output.json"
@@ -81,20 +81,22 @@ def remove_stale_temporaries(parent: Path, name: str | None = None) -> int:
     return removed
 
 
-def regular_input(path: str | os.PathLike[str], what: str = "input file") -> Path:
-    """``path`` if it is a regular file (a symlink to one is fine); otherwise
-    :class:`~mepnet.errors.InputError` naming it: a FIFO or device would block or never end."""
+def regular_input(
+    path: str | os.PathLike[str], what: str = "input file", error: type[MepnetError] = InputError
+) -> Path:
+    """``path`` if it is a regular file (a symlink to one is fine); otherwise ``error`` (the
+    caller's kind of bad input) naming it: a FIFO or device would block or never end."""
     path = Path(path)
     try:
         st = path.stat()
     except FileNotFoundError:
-        raise InputError(f"{path}: no such {what}") from None
+        raise error(f"{path}: no such {what}") from None
     except OSError as e:
-        raise InputError(f"{path}: cannot read the {what} ({e.strerror or e})") from None
+        raise error(f"{path}: cannot read the {what} ({e.strerror or e})") from None
     if stat.S_ISDIR(st.st_mode):
-        raise InputError(f"{path}: is a folder, not a {what}")
+        raise error(f"{path}: is a folder, not a {what}")
     if not stat.S_ISREG(st.st_mode):
-        raise InputError(f"{path}: not a regular file (a pipe or device cannot be a {what})")
+        raise error(f"{path}: not a regular file (a pipe or device cannot be a {what})")
     return path
 
 

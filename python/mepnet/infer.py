@@ -29,6 +29,9 @@ from mepnet.files import atomic_folder, check_replaceable
 from mepnet.geom import BrickGeomError, manual_camera, submodule_from_placed
 from mepnet.ldraw.io import ModelCheck, StepCheck, StepItem, build_order, check
 
+#: The writer name in the manifest of the LDraw path's step-image folders.
+LDRAW_WRITER = "mepnet.infer (LDraw steps)"
+
 
 def bundled_example() -> Path:
     """Path of the bundled example LDraw model."""
@@ -78,7 +81,7 @@ def print_plan(file: ldraw.LDrawFile, checks: list[ModelCheck]) -> None:
 def render_steps(file: ldraw.LDrawFile, checks: list[ModelCheck], out: Path, size: int) -> int:
     """Render the cumulative shape after every step of every model into the folder ``out``
     (written atomically); returns the number of images."""
-    with atomic_folder(out, "mepnet.infer (LDraw steps)") as tmp:
+    with atomic_folder(out, LDRAW_WRITER) as tmp:
         return _render_steps(checks, tmp, size)
 
 
@@ -146,12 +149,11 @@ def run_manual_folder(path: Path, args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from mepnet.manual import load_manual
-    from mepnet.plan import PLAN_WRITER, run_manual, write_plan
+    from mepnet.plan import run_manual, write_plan
     from mepnet.stage2 import make_predictor
 
     manual = load_manual(path)
-    out = args.out or Path(f"{path.resolve().name}-plan")  # (`infer .` names the folder)
-    check_replaceable(out, PLAN_WRITER)  # before the work: never replace what is not ours
+    out = args.out  # checked by _main before any work
     predictor = make_predictor(args.predictor, sigma=args.sigma, weights=args.weights)
     with tqdm(
         total=len(manual.all_steps()),
@@ -269,10 +271,13 @@ def _main(args: argparse.Namespace) -> int:
     if args.model is None:
         print(f"mepnet: the bundled example manual ({path}) with the shipped slim detector")
         args.out = args.out or Path("mepnet-example-plan")
+    if path.is_dir():  # a manual's plan goes to --out, by default NAME-plan beside it
+        from mepnet.plan import PLAN_WRITER
+
+        args.out = args.out or Path(f"{path.resolve().name}-plan")  # (`infer .` names it too)
     if args.out is not None:
-        check_replaceable(
-            args.out, "mepnet.infer" if path.is_dir() else "mepnet.infer (LDraw steps)"
-        )
+        # before the work: never replace what is not ours
+        check_replaceable(args.out, PLAN_WRITER if path.is_dir() else LDRAW_WRITER)
         if args.out.resolve() == path.resolve():
             raise OutputError(f"{args.out}: is the input itself (choose a new --out)")
     if path.is_dir():

@@ -115,8 +115,6 @@ def run_build(
     base = _bg.Assembly()
     for k, step in enumerate(build.steps):
         truth = full_truth = answers.truth(k) if answers is not None else None
-        if teacher_forced:
-            base = answers.assembly_before(k, components)  # type: ignore[union-attr]
         page_step, kept = _missing_entries(components, step)
         ctx = StepContext(page_step, base.copy(), components, manual.image_size)
         if truth is not None and len(kept) != len(step.components):
@@ -140,17 +138,22 @@ def run_build(
                 preds += [
                     Prediction(e, c.component, None, None, failure=why) for _ in range(c.count)
                 ]
+        # the predictions join the shape (teacher-forced: a trial copy; the true step joins it)
+        built = base.copy() if teacher_forced else base
         placed: list[Placed | None] = []
         for p in preds:
             pl: Placed | None = None
             if p.placed and p.failure is None:
                 colour = step.components[p.entry].colour
                 try:
-                    base.add(components[p.component], p.yaw, p.t, colour)
+                    built.add(components[p.component], p.yaw, p.t, colour)
                     pl = (p.component, int(p.yaw), tuple(p.t), colour)  # type: ignore[arg-type]
                 except BrickGeomError as e:  # a predictor other than stage 2 may collide
                     p.failure = str(e)
             placed.append(pl)
+        if teacher_forced:
+            for inst in full_truth.placed():  # type: ignore[union-attr]
+                base.add(components[inst.component], inst.yaw, inst.t, inst.colour)
         run.steps.append(StepRun(k + 1, step.image_path.name, preds, placed, seconds, full_truth))
         if on_step is not None:
             on_step()

@@ -16,7 +16,7 @@ from typing import Any
 import torch
 from mepnet.detector.config import ModelConfig
 from mepnet.detector.net import MEPNet, build_model
-from mepnet.errors import CheckpointError, MepnetError
+from mepnet.errors import CheckpointError
 from mepnet.files import atomic_write_bytes, atomic_write_json, regular_input
 from safetensors import SafetensorError
 from safetensors.torch import load as _st_load
@@ -47,15 +47,11 @@ def read_safetensors(
     """Tensors (on the CPU) and header metadata of a safetensors file; :class:`CheckpointError`
     naming the file for anything that is not one."""
     path = Path(path)
-    if path.exists():
-        try:
-            regular_input(path, "weights file")
-        except MepnetError as e:
-            raise CheckpointError(str(e)) from None
+    if not path.exists():
+        raise CheckpointError(f"{path}: no such file")
+    regular_input(path, "weights file", CheckpointError)
     try:
         data = path.read_bytes()
-    except FileNotFoundError:
-        raise CheckpointError(f"{path}: no such file") from None
     except OSError as e:
         raise CheckpointError(f"{path}: cannot read ({e.strerror or e})") from None
     _check_not_pickle(path, data)

@@ -1,44 +1,8 @@
 """LDraw: reading and writing .ldr / .mpd files (:mod:`.io`), converting real models into
 manuals (:mod:`.convert`) and ``python -m mepnet.ldraw`` (:mod:`.cli`)."""
 
+from mepnet.ldraw import io as _io
 from mepnet.ldraw.cli import main
-from mepnet.ldraw.io import (
-    IDENTITY,
-    FlatPart,
-    LDrawFile,
-    LDrawModel,
-    LDrawRef,
-    ModelCheck,
-    StepCheck,
-    StepItem,
-    build_order,
-    check,
-    inspect,
-    lattice_pose,
-    ldraw_placement,
-    load_part_mesh,
-    parse,
-    read,
-    write,
-)
+from mepnet.ldraw.io import *  # noqa: F403 (the public LDraw API, listed in io.__all__)
 
-__all__ = [
-    "IDENTITY",
-    "FlatPart",
-    "LDrawFile",
-    "LDrawModel",
-    "LDrawRef",
-    "ModelCheck",
-    "StepCheck",
-    "StepItem",
-    "build_order",
-    "check",
-    "inspect",
-    "lattice_pose",
-    "ldraw_placement",
-    "load_part_mesh",
-    "main",
-    "parse",
-    "read",
-    "write",
-]
+__all__ = [*_io.__all__, "main"]

@@ -14,7 +14,8 @@ from pathlib import Path
 import numpy as np
 
 from mepnet.cli import note
-from mepnet.errors import ManualFormatError, MepnetError
+from mepnet.errors import ManualFormatError
+from mepnet.files import regular_input
 
 #: The largest image mepnet reads (pixels): 8192 x 8192.
 MAX_PIXELS = 8192 * 8192
@@ -25,18 +26,11 @@ _RESIZE_NOTED: set[Path] = set()
 def _open(path: Path, what: str):  # type: ignore[no-untyped-def]
     from PIL import Image, UnidentifiedImageError
 
-    from mepnet.files import regular_input
-
-    try:
-        regular_input(path, what)
-    except MepnetError as e:
-        raise ManualFormatError(str(e)) from None
+    regular_input(path, what, ManualFormatError)
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("error", Image.DecompressionBombWarning)
             im = Image.open(path)
-    except FileNotFoundError:
-        raise ManualFormatError(f"{path}: {what} is missing") from None
     except (Image.DecompressionBombError, Image.DecompressionBombWarning):
         raise ManualFormatError(
             f"{path}: {what} is too large (more than {MAX_PIXELS:,} pixels)"
