@@ -346,7 +346,8 @@ impl PyFlatPart {
     fn name(&self) -> &str {
         &self.inner.name
     }
-    /// Colour after resolving 16 (and 24) to the enclosing submodel reference's colour.
+    /// Colour after LDraw's inheritance through every submodel above it (`resolve_colour`):
+    /// 16 and 24 stay as written only where nothing above sets a colour.
     #[getter]
     fn colour(&self) -> i32 {
         self.inner.colour
@@ -613,6 +614,14 @@ fn flatten_ldraw(py: Python<'_>, file: &PyLdrawFile) -> Vec<PyFlatPart> {
     flatten(py, &file.inner)
 }
 
+/// LDraw's colour inheritance: the colour of a line written in `code` inside a file referenced
+/// in colour `inherited` (16 -> `inherited`; 24 -> its edge colour as a direct colour
+/// `0x2RRGGBB`, 24 while `inherited` is 16; any other code is the line's own).
+#[pyfunction]
+fn resolve_colour(code: i32, inherited: i32) -> i32 {
+    brickgeom::colours::resolve_colour(code, inherited)
+}
+
 /// `(yaw, (x, y, z), off_lattice, non_yaw)` of an LDraw placement (y-down LDU, 3x3 matrix).
 #[pyfunction]
 fn lattice_pose_of(position: [f64; 3], matrix: Mat) -> (u8, (i32, i32, i32), bool, bool) {
@@ -719,6 +728,7 @@ pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(write_ldraw_py, m)?)?;
     m.add_function(wrap_pyfunction!(format_ldraw_py, m)?)?;
     m.add_function(wrap_pyfunction!(flatten_ldraw, m)?)?;
+    m.add_function(wrap_pyfunction!(resolve_colour, m)?)?;
     m.add_function(wrap_pyfunction!(lattice_pose_of, m)?)?;
     m.add_function(wrap_pyfunction!(ldraw_placement_of, m)?)?;
     m.add_function(wrap_pyfunction!(check_ldraw, m)?)?;

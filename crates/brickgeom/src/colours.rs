@@ -1,9 +1,12 @@
 //! LDraw colour codes -> RGB. A built-in table of the common solid and transparent colours
-//! (values as in the official LDConfig.ldr), optionally replaced by a library's LDConfig.ldr.
+//! (values and edge colours as in the official LDConfig.ldr), optionally replaced by a library's
+//! LDConfig.ldr; and LDraw's colour inheritance ([`resolve_colour`]).
 
 use std::collections::HashMap;
 use std::path::Path;
+use std::sync::OnceLock;
 
+use crate::component::MAIN_COLOUR;
 use crate::error::{BrickGeomError, Result};
 
 /// (code, name, rgb) of the built-in colours.
@@ -68,8 +71,52 @@ const BUILTIN: &[(i32, &str, u32)] = &[
     (484, "Dark_Orange", 0x91501C),
 ];
 
+/// Edge colours (`EDGE` in LDConfig.ldr, 2024-04-05) of the built-in colours that differ from
+/// [`DEFAULT_EDGE_RGB`]; every other built-in colour has that edge.
+const BUILTIN_EDGES: &[(i32, u32)] = &[
+    (0, 0x808080),
+    (6, 0x1E1E1E),
+    (33, 0x000B38),
+    (34, 0x174F2B),
+    (36, 0x660D05),
+    (40, 0x2A2823),
+    (41, 0x326276),
+    (43, 0x59D1DE),
+    (46, 0xB49208),
+    (47, 0xC9C9C9),
+    (57, 0x9E5C0A),
+    (70, 0x808080),
+    (288, 0x808080),
+    (308, 0x808080),
+];
+
 /// Colour used for codes that are neither in the table nor direct colours.
 pub const UNKNOWN_RGB: [u8; 3] = [160, 160, 160];
+
+/// LDraw's edge colour code 24: on a line, "the edge colour (complement) of the colour of the line
+/// that references this file".
+pub const EDGE_COLOUR_CODE: i32 = 24;
+
+/// The edge colour taken for a colour the table knows no edge for (a direct colour, a code outside
+/// the table): `#333333`, the edge LDConfig.ldr gives most colours.
+pub const DEFAULT_EDGE_RGB: [u8; 3] = [0x33, 0x33, 0x33];
+
+/// The LDraw direct colour code (`0x2RRGGBB`) of an RGB value.
+pub fn direct_colour(rgb: [u8; 3]) -> i32 {
+    0x200_0000 | (rgb[0] as i32) << 16 | (rgb[1] as i32) << 8 | rgb[2] as i32
+}
+
+/// LDraw's colour inheritance with the built-in table ([`ColourTable::resolve`]): the colour a
+/// line written in `code` has when the file holding it is referenced in colour `inherited`.
+pub fn resolve_colour(code: i32, inherited: i32) -> i32 {
+    if code != MAIN_COLOUR && code != EDGE_COLOUR_CODE {
+        return code; // the common case: no table needed
+    }
+    static TABLE: OnceLock<ColourTable> = OnceLock::new();
+    TABLE
+        .get_or_init(ColourTable::builtin)
+        .resolve(code, inherited)
+}
 
 fn rgb_of(v: u32) -> [u8; 3] {
     [(v >> 16) as u8, (v >> 8) as u8, v as u8]
@@ -79,6 +126,8 @@ fn rgb_of(v: u32) -> [u8; 3] {
 #[derive(Debug, Clone)]
 pub struct ColourTable {
     map: HashMap<i32, (String, [u8; 3])>,
+    /// code -> edge colour (`EDGE` of LDConfig.ldr).
+    edges: HashMap<i32, [u8; 3]>,
 }
 
 impl Default for ColourTable {
@@ -95,10 +144,18 @@ impl ColourTable {
                 .iter()
                 .map(|&(c, n, v)| (c, (n.to_string(), rgb_of(v))))
                 .collect(),
+            edges: BUILTIN
+                .iter()
+                .map(|&(c, _, _)| {
+                    let edge = BUILTIN_EDGES.iter().find(|&&(e, _)| e == c);
+                    (c, edge.map_or(DEFAULT_EDGE_RGB, |&(_, v)| rgb_of(v)))
+                })
+                .collect(),
         }
     }
 
-    /// The built-in table updated from `LDConfig.ldr` text (`0 !COLOUR name CODE c VALUE #rrggbb`).
+    /// The built-in table updated from `LDConfig.ldr` text (`0 !COLOUR name CODE c VALUE #rrggbb
+    /// EDGE #rrggbb`; an `EDGE` given as a colour code takes that code's value).
     pub fn with_ldconfig(text: &str) -> Self {
         let mut t = Self::builtin();
         for line in text.lines() {
@@ -113,6 +170,18 @@ impl ColourTable {
                 .and_then(|v| u32::from_str_radix(v, 16).ok());
             if let (Some(c), Some(v)) = (code, value) {
                 t.map.insert(c, (f[2].to_string(), rgb_of(v)));
+                let edge = field("EDGE").and_then(|e| match e.strip_prefix('#') {
+                    Some(hex) => u32::from_str_radix(hex, 16).ok().map(rgb_of),
+                    None => e
+                        .parse::<i32>()
+                        .ok()
+                        .and_then(|k| t.map.get(&k))
+                        .map(|x| x.1),
+                });
+                match edge {
+                    Some(e) => t.edges.insert(c, e),
+                    None => t.edges.remove(&c),
+                };
             }
         }
         t
@@ -137,6 +206,33 @@ impl ColourTable {
             return rgb_of(code as u32 & 0xFF_FFFF);
         }
         UNKNOWN_RGB
+    }
+
+    /// The edge colour of a code in the table (`EDGE` of LDConfig.ldr), if the table has one.
+    pub fn edge(&self, code: i32) -> Option<[u8; 3]> {
+        self.edges.get(&code).copied()
+    }
+
+    /// LDraw's colour inheritance: the colour of a line written in `code` inside a file that is
+    /// referenced in colour `inherited`. Applied at every level of submodels, from the part up to
+    /// the main model (which nothing references: there `inherited` is 16).
+    /// - 16 (main colour) is `inherited`, so it stays 16 at the top level.
+    /// - 24 (edge colour) is the edge colour of `inherited` as a direct colour `0x2RRGGBB`, and
+    ///   [`DEFAULT_EDGE_RGB`] for a colour the table knows no edge for (direct colours, so every
+    ///   edge colour resolved below; codes outside the table; 24 in the built-in table);
+    ///   it stays 24 only while `inherited` is 16 (nothing above has set a colour yet).
+    /// - Any other code (a table colour, a direct colour `0x2RRGGBB`) is the line's own.
+    ///
+    /// Resolving bottom-up (a submodel's bricks first against the reference placing them, then
+    /// against the next reference up) gives what resolving top-down gives:
+    /// `resolve(resolve(x, a), b) == resolve(x, resolve(a, b))`.
+    pub fn resolve(&self, code: i32, inherited: i32) -> i32 {
+        match (code, inherited) {
+            (MAIN_COLOUR, c) => c,
+            (EDGE_COLOUR_CODE, MAIN_COLOUR) => EDGE_COLOUR_CODE,
+            (EDGE_COLOUR_CODE, c) => direct_colour(self.edge(c).unwrap_or(DEFAULT_EDGE_RGB)),
+            (c, _) => c,
+        }
     }
 
     /// Name of a code, if known.

@@ -21,17 +21,14 @@ pub struct Brick {
 
 impl Brick {
     /// This brick as placed by its component standing at `pose` in `colour`: the poses compose,
-    /// and the one colour rule of LDraw: a brick in `MAIN_COLOUR` takes the colour its component
-    /// is placed with; any other colour is the brick's own.
+    /// and LDraw's colour inheritance ([`resolve_colour`](crate::colours::resolve_colour)): a
+    /// brick in `MAIN_COLOUR` takes the colour its component is placed with, a brick in 24 that
+    /// colour's edge colour; any other colour is the brick's own.
     pub fn placed_by(&self, pose: &Pose, colour: i32) -> Brick {
         Brick {
             part: self.part,
             pose: pose.compose(&self.pose),
-            colour: if self.colour == MAIN_COLOUR {
-                colour
-            } else {
-                self.colour
-            },
+            colour: crate::colours::resolve_colour(self.colour, colour),
         }
     }
 }

@@ -5,7 +5,8 @@ use std::collections::HashMap;
 use std::sync::Arc;
 
 use crate::assembly::{Assembly, AttachKind};
-use crate::component::{Brick, Component, MAIN_COLOUR};
+use crate::colours::resolve_colour;
+use crate::component::{Brick, Component};
 use crate::error::{BrickGeomError, Result};
 use crate::lattice::Pose;
 use crate::ldraw::{lattice_pose, normalise_name, LdrawFile, LdrawRef};
@@ -285,11 +286,10 @@ impl LatticeFile {
                             out.push(Brick {
                                 part: b.part,
                                 pose: it.pose.compose(&b.pose),
-                                colour: if b.colour == MAIN_COLOUR {
-                                    it.colour
-                                } else {
-                                    b.colour
-                                },
+                                // LDraw's inheritance: 16 takes the reference's
+                                // colour, 24 its edge colour; where the reference is
+                                // itself 16, the model above decides.
+                                colour: resolve_colour(b.colour, it.colour),
                             });
                         }
                     }

@@ -6,10 +6,17 @@ exists (measured on the real part geometry of an LDraw library), otherwise dropp
 did for its Classics and Architecture sets. Every substitution and drop is recorded in
 ``manual.json`` under ``source``. Images are rendered with brickgeom's renderer and a
 manual-style camera (elevation 30, azimuth 225, framed to the shape after each step).
+
+Colours follow LDraw's inheritance (:func:`mepnet.ldraw.io.resolve_colour`): a line in colour 16
+takes the colour of the reference placing its model, through any depth of submodels, starting
+from the main model of the file (so a wrapper's colour reaches the model inside it); 24 is that
+colour's edge colour. A submodel whose parts inherit a colour becomes one submodule per colour it
+is placed in, each built in its real colours.
 """
 
 from __future__ import annotations
 
+import collections
 import os
 from dataclasses import dataclass
 from typing import Any
@@ -24,8 +31,8 @@ from mepnet.geom import (
     rotate_ldu,
     submodule_from_placed,
 )
-from mepnet.ldraw.io import LDrawFile, build_order, check
-from mepnet.manual import write_manual
+from mepnet.ldraw.io import LDrawFile, ModelCheck, build_order, check, resolve_colour
+from mepnet.manual import MAIN_COLOUR, write_manual
 
 #: Library parts eligible as substitutes: rectangular bricks, plates and tiles.
 RECTANGULAR = ("simple", "tile")
@@ -119,6 +126,71 @@ class Substitutes:
         )
 
 
+#: A model to convert: (model index, the colour it inherits; MAIN_COLOUR when none of its parts
+#: inherits one, so that it is converted once whatever places it).
+Variant = tuple[int, int]
+
+
+@dataclass(frozen=True)
+class Variants:
+    """The models under a root with the colours they inherit (:func:`variants`)."""
+
+    #: every variant, submodels before the models that use them, the root last
+    order: list[Variant]
+    #: models whose lines (their own, or those of the submodels they place) use 16 or 24
+    inherits: frozenset[int]
+
+    def key(self, model: int, colour: int) -> Variant:
+        """The variant of ``model`` placed in ``colour``."""
+        return (model, colour if model in self.inherits else MAIN_COLOUR)
+
+
+def variants(checks: list[ModelCheck], root: int, colour: int) -> Variants:
+    """The models under ``root`` (placed in ``colour``) with the colours they inherit. A model
+    whose lines (its own, or those of the submodels it places) use 16 or 24 is one variant per
+    colour it is placed in; any other model is one variant. Walked with an explicit stack, like
+    :func:`build_order`."""
+    inherits: set[int] = set()
+    for m in build_order(checks, root):
+        if any(
+            it.submodel in inherits if it.submodel is not None else it.colour in (MAIN_COLOUR, 24)
+            for step in checks[m].items
+            for it in step
+        ):
+            inherits.add(m)
+    found = Variants([], frozenset(inherits))
+
+    def children(v: Variant) -> list[Variant]:
+        m, c = v
+        return [
+            found.key(it.submodel, resolve_colour(it.colour, c))
+            for step in checks[m].items
+            for it in step
+            if it.submodel is not None
+        ]
+
+    top = found.key(root, colour)
+    seen = {top}
+    stack = [(top, iter(children(top)))]
+    while stack:
+        v, rest = stack[-1]
+        child = next(rest, None)
+        if child is None:
+            stack.pop()
+            found.order.append(v)
+        elif child not in seen:
+            seen.add(child)
+            stack.append((child, iter(children(child))))
+    return found
+
+
+def variant_name(name: str, colour: int) -> str:
+    """A submodule's name for one of several colour variants of model ``name``."""
+    stem, ext = os.path.splitext(name)
+    shown = f"{colour:#x}" if colour >= 0x2000000 else str(colour)
+    return f"{stem} (colour {shown}){ext}"
+
+
 def convert(
     file: LDrawFile,
     out: str | os.PathLike[str],
@@ -144,7 +216,7 @@ def convert(
     def size_of(m: int) -> int:
         return sizes.get(m, 0)
 
-    root = 0
+    root, root_colour = 0, MAIN_COLOUR  # the main model: nothing places it
     while True:
         top = [it for step in checks[root].items for it in step]
         subs = [it.submodel for it in top if it.submodel is not None]
@@ -153,20 +225,25 @@ def convert(
         biggest = max(range(len(subs)), key=lambda i: size_of(subs[i]))
         if len(top) == 1 or top[biggest].off_lattice or top[biggest].non_yaw:
             root = subs[biggest]
+            # the wrapper's reference gives the model its colour
+            root_colour = resolve_colour(top[biggest].colour, root_colour)
         else:
             break
     subs_finder = Substitutes(ldraw_dir)
     substitutions: list[dict[str, Any]] = []
     dropped: list[dict[str, Any]] = []
-    # model index -> (component, y shift of its frame, submodule slot)
-    converted: dict[int, tuple[_bg.Component, int, int]] = {}
+    # (model, inherited colour) -> (component, y shift of its frame, submodule slot)
+    converted: dict[Variant, tuple[_bg.Component, int, int]] = {}
     submodules: list[dict[str, Any]] = []
     main_build: dict[str, Any] | None = None
     kept_parts = 0
-    for m in build_order(checks, root):
+    tree = variants(checks, root, root_colour)
+    per_model = collections.Counter(m for m, _ in tree.order)
+    for m, inherited in tree.order:
         model = checks[m]
         lift = 1 << 10  # build high first: model frames may reach below y = 0
         placed: list[tuple[_bg.Component, Any, int, tuple[int, int, int], int]] = []
+        origin: list[dict[str, Any]] = []  # where each placed item comes from
         steps: list[list[int]] = []
         for s, items in enumerate(model.items):
             ids = []
@@ -178,6 +255,7 @@ def convert(
                     "name": it.name,
                 }
                 yaw, t = it.yaw, it.t
+                colour = resolve_colour(it.colour, inherited)
                 if it.off_lattice or it.non_yaw:
                     dropped.append(
                         {
@@ -189,11 +267,12 @@ def convert(
                     )
                     continue
                 if it.submodel is not None:
-                    if it.submodel not in converted:
+                    sub = tree.key(it.submodel, colour)
+                    if sub not in converted:
                         dropped.append({**where, "reason": "submodel has no convertible parts"})
                         continue
-                    comp, shift, slot = converted[it.submodel]
-                    placed.append((comp, slot, yaw, (t[0], t[1] - shift + lift, t[2]), it.colour))
+                    comp, shift, slot = converted[sub]
+                    placed.append((comp, slot, yaw, (t[0], t[1] - shift + lift, t[2]), colour))
                 elif it.part is not None:
                     placed.append(
                         (
@@ -201,7 +280,7 @@ def convert(
                             it.part,
                             yaw,
                             (t[0], t[1] + lift, t[2]),
-                            it.colour,
+                            colour,
                         )
                     )
                 else:
@@ -217,9 +296,10 @@ def convert(
                             part,
                             yaw2,
                             (t2[0], t2[1] + lift, t2[2]),
-                            it.colour,
+                            colour,
                         )
                     )
+                origin.append(where)
                 ids.append(len(placed) - 1)
             if ids:
                 steps.append(ids)
@@ -233,13 +313,7 @@ def convert(
                 probe.add(comp, yaw, t, col)
                 keep.append(k)
             except BrickGeomError as e:
-                dropped.append(
-                    {
-                        "model": model.name,
-                        "name": comp.name,
-                        "reason": f"overlaps another part ({e})",
-                    }
-                )
+                dropped.append({**origin[k], "reason": f"overlaps another part ({e})"})
         keep_set = set(keep)
         steps = [[i for i in st if i in keep_set] for st in steps]
         steps = [st for st in steps if st]
@@ -261,15 +335,16 @@ def convert(
             # parts of the final shape, submodules expanded (comparable with the file's count)
             kept_parts = sum(len(placed[i][0].bricks) for i in sorted(keep_set))
             break
+        name = model.name if per_model[m] == 1 else variant_name(model.name, inherited)
         comp = submodule_from_placed(
-            model.name,
+            name,
             [(c, yaw, t, col) for c, _, yaw, t, col in (placed[i] for i in sorted(keep_set))],
         )
         bricks = comp.bricks
-        converted[m] = (comp, shift, len(submodules))
+        converted[(m, inherited)] = (comp, shift, len(submodules))
         submodules.append(
             {
-                "name": model.name,
+                "name": name,
                 "symmetry": comp.symmetry,
                 "topmost": comp.topmost,
                 "bricks": [

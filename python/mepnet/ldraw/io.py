@@ -7,6 +7,7 @@ model and reference types are the binding's frozen classes (built in Python as
 position, matrix, is_submodel)``; values the reader would not read back raise
 :class:`mepnet.LDrawError`). ``file.flatten()`` gives :class:`FlatPart` s, :func:`check` one
 :class:`ModelCheck` per model (its :class:`StepItem` s and :class:`StepCheck` s).
+:func:`resolve_colour` is LDraw's colour inheritance (16 and 24).
 :func:`inspect` summarises a file (steps, submodels, part counts, library coverage, off-lattice
 / non-yaw parts, per-step physical validity); :func:`build_order` lists models submodels first.
 """
@@ -53,6 +54,16 @@ def check(file: LDrawFile) -> list[ModelCheck]:
     """Every model resolved against the library (its :class:`StepItem` s, step by step) and the
     physical validity of each of its steps, one :class:`ModelCheck` per model of the file."""
     return _bg.check_ldraw(file)
+
+
+def resolve_colour(code: int, inherited: int) -> int:
+    """LDraw's colour inheritance: the colour of a line written in ``code`` inside a model placed
+    in colour ``inherited``. 16 is ``inherited`` (16 at the top level: nothing places the main
+    model); 24 is the edge colour of ``inherited`` as a direct colour ``0x2RRGGBB`` (from
+    LDConfig.ldr's edges; ``#333333`` for colours without one) and stays 24 while ``inherited``
+    is 16; any other code, direct colours ``0x2RRGGBB`` included, is the line's own. Applied
+    level by level it resolves any depth of submodels (``FlatPart.colour`` is resolved so)."""
+    return _bg.resolve_colour(code, inherited)
 
 
 def lattice_pose(
@@ -181,5 +192,6 @@ __all__ = [
     "load_part_mesh",
     "parse",
     "read",
+    "resolve_colour",
     "write",
 ]

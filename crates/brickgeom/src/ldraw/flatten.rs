@@ -3,6 +3,7 @@
 use std::collections::HashMap;
 
 use super::model::{normalise_name, LdrawFile, LdrawRef};
+use crate::colours::resolve_colour;
 
 /// A part of a flattened file: its placement after composing every submodel transform above it.
 ///
@@ -11,8 +12,10 @@ use super::model::{normalise_name, LdrawFile, LdrawRef};
 pub struct FlatPart {
     /// Part name as referenced (normalised, e.g. `"3001.dat"`, `"s/3001s01.dat"`).
     pub name: String,
-    /// Colour after resolving 16 (and 24) to the colour of the enclosing submodel reference;
-    /// stays 16 when nothing above sets a colour.
+    /// Colour after LDraw's inheritance through every submodel above it
+    /// ([`resolve_colour`](crate::colours::resolve_colour)): 16 is the colour of the reference
+    /// that places its submodel (itself resolved the same way, up to the main model), 24 that
+    /// colour's edge colour; both stay as written when nothing above sets a colour.
     pub colour: i32,
     /// World position in LDU, LDraw's y-down frame.
     pub position: [f64; 3],
@@ -58,6 +61,9 @@ impl LdrawFile {
     /// References marked `is_submodel` whose model is missing, or that would re-enter a model
     /// already being expanded (only possible in hand-built files; parsing rejects cycles), are
     /// skipped. The walk is iterative, so deep nesting cannot overflow the stack.
+    ///
+    /// Colours follow LDraw's inheritance: the main model is walked in colour 16, and every
+    /// reference's colour is resolved against the colour its model was placed with.
     pub fn flatten(&self) -> Vec<FlatPart> {
         if self.models.is_empty() {
             return Vec::new();
@@ -99,11 +105,7 @@ impl LdrawFile {
             let top_step = if depth == 1 { step } else { frame.top_step };
             let matrix = mat_mul(&frame.matrix, &r.matrix);
             let position = add(mat_vec(&frame.matrix, &r.position), frame.position);
-            let colour = if r.colour == 16 || r.colour == 24 {
-                frame.colour
-            } else {
-                r.colour
-            };
+            let colour = resolve_colour(r.colour, frame.colour);
             if !r.is_submodel {
                 out.push(FlatPart {
                     name: r.name.clone(),
