@@ -62,8 +62,8 @@ impl Pose {
         }
     }
 
-    /// The 3x3 rotation matrix (row major). The same matrix serves the y-up lattice and LDraw's
-    /// y-down frame, because a rotation about y commutes with flipping y.
+    /// The 3x3 rotation matrix (row major) in the lattice frame. LDraw's frame turns the other
+    /// way about y (see `ldraw::ldraw_placement`).
     pub fn rotation_matrix(&self) -> [[f32; 3]; 3] {
         yaw_matrix(self.yaw)
     }

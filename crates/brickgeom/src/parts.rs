@@ -3,11 +3,16 @@
 //! serves the lookup API over the table; this module does not use `library`.
 //!
 //! Frame: the LDraw part origin converted to the y-up lattice (LDraw (x, y, z) LDU -> lattice
-//! (x/10, -y/8, z/10)). For every part here but two that is the centre of the body's top face;
-//! the corner parts 2420/2357 have it at the centre of the corner stud, and the 31° slopes
-//! 54200/85984 at the centre of the bottom face. Where LDraw's own files were checked: 1xN and
-//! 2xN parts are long along x; slopes face -z (their studs are on the back row at z = 0); the
-//! corners' missing quadrant is +x/+z.
+//! (x/10, -y/8, -z/10), half a turn about x, DESIGN §2). For every part here but two that is
+//! the centre of the body's top face; the corner parts 2420/2357 have it at the centre of the
+//! corner stud, and the 31° slopes 54200/85984 at the centre of the bottom face.
+//!
+//! The shapes below are written in the *drawing frame* (x, -y, z) of LDraw's part files (y up,
+//! x and z as LDraw has them), where LDraw's own files read: 1xN and 2xN parts are long along x;
+//! slopes face -z (their studs are on the back row at z = 0); the corners' missing quadrant is
+//! +x/+z. [`finish`] then turns each into the lattice frame by negating z (LDraw -z is lattice
+//! +z): in the lattice, slopes face +z and the corners' missing quadrant is +x/-z.
+//! `tests/library_vs_ldraw.rs` checks every part against the real LDraw geometry cell by cell.
 //!
 //! Occupancy rule (all parts): a voxel is occupied when more than half of its volume is inside
 //! the body (measured on a 1-LDU sample grid, see `shapes::voxelize`). Slopes therefore keep
@@ -201,7 +206,7 @@ struct Shape {
     anti_studs: Vec<Lattice>,
     symmetry: u8,
     keypoint: [f32; 3],
-    /// Base centres (LDU) of side studs on faces whose outward normal is -z.
+    /// Base centres (LDU, drawing frame) of side studs on faces whose outward normal is -z.
     side_studs: Vec<[f32; 3]>,
 }
 
@@ -218,8 +223,18 @@ impl Shape {
     }
 }
 
+/// Mirror z of a point (drawing frame -> lattice frame, see the module header).
+fn flip_z(p: Lattice) -> Lattice {
+    [p[0], p[1], -p[2]]
+}
+
 fn finish(id: &'static str, name: &'static str, category: Category, s: Shape) -> PartDef {
-    let mut voxels = voxelize(&s.body);
+    // Drawing frame (LDraw's x and z, y up) -> lattice frame: z negated. The cell with min
+    // corner k along z covers [k, k+1), mirrored [-k-1, -k).
+    let mut voxels: Vec<Lattice> = voxelize(&s.body)
+        .into_iter()
+        .map(|[i, j, k]| [i, j, -k - 1])
+        .collect();
     voxels.sort_unstable();
     let mut mesh = Mesh::new();
     for solid in &s.body {
@@ -232,15 +247,23 @@ fn finish(id: &'static str, name: &'static str, category: Category, s: Shape) ->
     for &b in &s.side_studs {
         mesh.append(&side_stud_mesh_neg_z(b));
     }
+    // A mirror: negate z and reverse every triangle so the winding stays outward.
+    for v in &mut mesh.vertices {
+        v[2] = -v[2] + 0.0;
+    }
+    for t in &mut mesh.triangles {
+        t.swap(1, 2);
+    }
+    let [kx, ky, kz] = s.keypoint;
     PartDef {
         id,
         name,
         category,
         voxels,
-        studs: s.studs,
-        anti_studs: s.anti_studs,
+        studs: s.studs.into_iter().map(flip_z).collect(),
+        anti_studs: s.anti_studs.into_iter().map(flip_z).collect(),
         symmetry: s.symmetry,
-        keypoint: s.keypoint,
+        keypoint: [kx, ky, -kz + 0.0],
         mesh,
         side_studs: s.side_studs.len() as u8,
     }

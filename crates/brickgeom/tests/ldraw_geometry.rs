@@ -54,12 +54,13 @@ fn round_brick_and_side_stud() {
     assert_close(hi, [10.0, 4.0, 10.0]);
     assert_eq!(round.stud_positions, vec![[0.0, 0.0, 0.0]]);
 
-    // 87087: one top stud; the side stud (pointing -z) is not a top stud.
+    // 87087: one top stud; the side stud (pointing LDraw's -z, the lattice's +z) is not a top
+    // stud.
     let side = load_part_geometry(&root, "87087").unwrap();
     assert_eq!(side.stud_count, 1);
     let (lo, hi) = bounds(&side);
-    assert_close(lo, [-10.0, -24.0, -14.0]);
-    assert_close(hi, [10.0, 4.0, 10.0]);
+    assert_close(lo, [-10.0, -24.0, -10.0]);
+    assert_close(hi, [10.0, 4.0, 14.0]);
 }
 
 #[test]

@@ -102,8 +102,10 @@ fn flatten_composes_rotations_and_steps() {
     assert_eq!(flat[1].colour, 16, "nothing above sets a colour");
     // yaw 1 maps (x, y, z) to (z, y, -x): (20, 0, 0) -> (0, 0, -20), then + (100, -8, 0).
     assert_eq!(flat[1].position, [100.0, -8.0, -20.0]);
+    // The lattice is LDraw turned half a turn about x: z negated, and LDraw's quarter turn
+    // about y is the lattice's quarter turn the other way (yaw 3).
     let lp = lattice_pose(flat[1].position, flat[1].matrix);
-    assert_eq!(lp.pose, Pose::new(1, [10, 1, -2]));
+    assert_eq!(lp.pose, Pose::new(3, [10, 1, 2]));
     assert!(!lp.off_lattice && !lp.non_yaw);
 }
 
@@ -206,7 +208,7 @@ fn lattice_pose_conversion() {
         [20.0, -24.0, -10.0],
         yaw_matrix(0).map(|r| r.map(f64::from)),
     );
-    assert_eq!(lp.pose.t, [2, 3, -1]);
+    assert_eq!(lp.pose.t, [2, 3, 1], "LDraw z = -10 is lattice z = +1");
     let off = lattice_pose([1.0, 2.5, 0.04], yaw_matrix(0).map(|r| r.map(f64::from)));
     assert!(off.off_lattice);
     assert_eq!(off.pose.t, [0, 0, 0]);

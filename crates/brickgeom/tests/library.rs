@@ -316,7 +316,7 @@ fn meshes_are_valid_and_fit_the_voxels() {
         let (lo, hi) = m.bounds().unwrap();
         let vlo = [0, 2].map(|a| d.voxels.iter().map(|v| v[a]).min().unwrap() as f32 * 10.0);
         let vhi = [0, 2].map(|a| (d.voxels.iter().map(|v| v[a]).max().unwrap() + 1) as f32 * 10.0);
-        // 87087's side stud sticks out 4 LDU on -z.
+        // 87087's side stud sticks out 4 LDU on +z (LDraw's -z).
         let side = if d.side_studs > 0 { 4.0 } else { 0.0 };
         assert!(
             (lo[0] - vlo[0]).abs() <= 1.0 && (hi[0] - vhi[0]).abs() <= 1.0,
@@ -324,7 +324,7 @@ fn meshes_are_valid_and_fit_the_voxels() {
             d.id
         );
         assert!(
-            (lo[2] + side - vlo[1]).abs() <= 1.0 && (hi[2] - vhi[1]).abs() <= 1.0,
+            (lo[2] - vlo[1]).abs() <= 1.0 && (hi[2] - side - vhi[1]).abs() <= 1.0,
             "{}: z {lo:?} {hi:?}",
             d.id
         );

@@ -10,7 +10,8 @@
 //! 1-3 diagonal) make the mesh; 0 (comments and meta commands), 2 and 5 (lines) are skipped.
 //! BFC winding is honoured (`CERTIFY CW/CCW`, `CW`, `CCW`, `INVERTNEXT`, mirrored matrices), so
 //! for certified parts every triangle is counter-clockwise seen from outside in the output frame.
-//! Output vertices are LDU in brickgeom's y-up frame (LDraw y negated), identical vertices merged.
+//! Output vertices are LDU in brickgeom's y-up frame (LDraw y and z negated: a rotation, so windings
+//! keep their sense), identical vertices merged.
 //!
 //! Studs: every reference to one of [`TOP_STUD_PRIMITIVES`] is a stud, found recursively (a stud
 //! inside a subpart or stud-group primitive `stug*.dat` referenced twice counts twice). A stud
@@ -296,14 +297,14 @@ fn index_dir(dir: &Path, rel: &str, depth: usize, index: &mut HashMap<String, Pa
     }
 }
 
-/// Convert a flattened part to the y-up output: negate y (a mirror, so windings flip), merge
-/// identical vertices, keep the studs whose axis points up.
+/// Convert a flattened part to the y-up output: negate y and z (half a turn about x, so windings
+/// keep their sense), merge identical vertices, keep the studs whose axis points up.
 fn to_part_geometry(flat: &Flat) -> PartGeometry {
     let mut mesh = Mesh::new();
     let mut ids: HashMap<[u32; 3], u32> = HashMap::new();
     let mut vertex = |v: &[f64; 3]| -> u32 {
         // `+ 0.0` turns -0.0 into 0.0 so both merge.
-        let p = [v[0] as f32 + 0.0, -v[1] as f32 + 0.0, v[2] as f32 + 0.0];
+        let p = [v[0] as f32 + 0.0, -v[1] as f32 + 0.0, -v[2] as f32 + 0.0];
         let key = p.map(f32::to_bits);
         *ids.entry(key).or_insert_with(|| {
             mesh.vertices.push(p);
@@ -312,7 +313,7 @@ fn to_part_geometry(flat: &Flat) -> PartGeometry {
     };
     let mut triangles = Vec::with_capacity(flat.tris.len());
     for [a, b, c] in &flat.tris {
-        let t = [vertex(a), vertex(c), vertex(b)];
+        let t = [vertex(a), vertex(b), vertex(c)];
         if t[0] != t[1] && t[1] != t[2] && t[0] != t[2] {
             triangles.push(t);
         }
@@ -326,7 +327,7 @@ fn to_part_geometry(flat: &Flat) -> PartGeometry {
             // LDraw up is -y; cos 25° ~ 0.9.
             len > 0.0 && -axis[1] / len > 0.9
         })
-        .map(|(p, _)| [p[0] as f32 + 0.0, -p[1] as f32 + 0.0, p[2] as f32 + 0.0])
+        .map(|(p, _)| [p[0] as f32 + 0.0, -p[1] as f32 + 0.0, -p[2] as f32 + 0.0])
         .collect();
     PartGeometry {
         mesh,

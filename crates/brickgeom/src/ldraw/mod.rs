@@ -1,7 +1,9 @@
 //! LDraw I/O: model files (.ldr/.mpd) and part geometry.
 //!
 //! LDraw's frame is y down; brickgeom's lattice is y up. The conversion happens here and only
-//! here: LDU (x, y, z) in LDraw <-> lattice (x / 10, -y / 8, z / 10).
+//! here: LDU (x, y, z) in LDraw <-> lattice (x / 10, -y / 8, -z / 10), a rotation (half a turn
+//! about x), never a mirror: seen from LDraw's front (camera on LDraw's -z side, -y up), LDraw +x
+//! is on the right, in mepnet's pictures as in every LDraw tool's.
 //!
 //! - Models: [`read_ldraw`] / [`parse_ldraw`] give an [`LdrawFile`] (models, steps, references
 //!   in LDraw's frame); [`LdrawFile::flatten`] composes submodel transforms into world-placed
