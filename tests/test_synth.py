@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 from mepnet import _brickgeom as _bg
 from mepnet.detector.config import ModelConfig
-from mepnet.detector.targets import MAX_INSTANCES
+from mepnet.detector.targets import MAX_INSTANCES, component_slots
 from mepnet.manual import ManualFormatError, load_manual
 from mepnet.train.data import FolderSteps, manual_steps
 
@@ -220,8 +220,10 @@ def test_training_steps_of_manual_folders(manuals: Path):
     item = ds[(len(ds) - 1, 0)]
     assert item.tensors["image"].shape == (4, cfg.image_size, cfg.image_size)
     # the last step adds instances: its targets hold those of the callout entries in the slots
+    # (entries of one component share a slot: K_max slots can hold more than K_max entries)
     last = loaded[-1].main.steps[-1]
-    want = min(sum(c.count for c in last.components[: cfg.k_max]), MAX_INSTANCES)
+    slots = component_slots(last)[: cfg.k_max]
+    want = min(sum(last.components[e].count for _, es in slots for e in es), MAX_INSTANCES)
     assert want > 0 and int(item.tensors["inst_valid"].sum()) == want
     with_subs = FolderSteps([manuals], **kw, submodules=True)
     n_sub = sum(len(b.steps) for m in loaded for b in m.submodules)

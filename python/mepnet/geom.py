@@ -66,11 +66,13 @@ def bounds_corners(assembly: Assembly, drop: int = 0) -> list[list[float]]:
 def manual_camera(
     assembly: Assembly,
     elevation: float = 30.0,
-    azimuth: float = 225.0,
+    azimuth: float = 315.0,
     fill: float = 0.85,
     drop: int = 0,
 ) -> Camera:
-    """A manual-style camera framing an assembly (the shape fills ``fill`` of the frame)."""
+    """A manual-style camera framing an assembly (the shape fills ``fill`` of the frame). The
+    default view is LDraw tools' front-left three-quarter view: the camera on LDraw's front
+    (-z, the lattice's +z) and left (-x), 30 degrees up."""
     corners = np.array(bounds_corners(assembly, drop), dtype=np.float64)
     return Camera(elevation, azimuth).fitted(corners, fill)
 

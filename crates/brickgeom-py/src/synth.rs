@@ -42,6 +42,7 @@ fn config_from(d: Option<&Bound<'_, PyDict>>) -> PyResult<SynthConfig> {
             "rounds" => c.rounds = v.extract().map_err(named)?,
             "p_submodule" => c.p_submodule = v.extract().map_err(named)?,
             "p_stack" => c.p_stack = v.extract().map_err(named)?,
+            "p_mirror_view" => c.p_mirror_view = v.extract().map_err(named)?,
             "submodule_bricks" => c.submodule_bricks = v.extract().map_err(named)?,
             "max_step_instances" => c.max_step_instances = v.extract().map_err(named)?,
             "max_step_types" => c.max_step_types = v.extract().map_err(named)?,
@@ -81,6 +82,7 @@ fn synth_default_config(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
     d.set_item("rounds", c.rounds)?;
     d.set_item("p_submodule", c.p_submodule)?;
     d.set_item("p_stack", c.p_stack)?;
+    d.set_item("p_mirror_view", c.p_mirror_view)?;
     d.set_item("submodule_bricks", c.submodule_bricks)?;
     d.set_item("max_step_instances", c.max_step_instances)?;
     d.set_item("max_step_types", c.max_step_types)?;

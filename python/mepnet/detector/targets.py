@@ -6,6 +6,13 @@ voxels per slot) and the targets at the head stride: Gaussian centre heatmaps pe
 keypoint offsets, semantic masks per slot, an instance map for the associative-embedding loss,
 and per instance its slot, keypoint cell and rotation class. Augmentation (colour, outlines,
 blur, scale) keeps image, camera and keypoints consistent.
+
+The canonical view: a picture does not change when the world and the camera turn together about
++y, so every sample is presented to the network with the world turned by the quarter turns
+(:func:`canonical_turn`) that bring the camera's azimuth into [180, 270) -- the base shape and
+the camera turned, the picture untouched. The network therefore sees every azimuth as one of a
+quarter-circle of views (front-left and front-right three-quarter views alike), and its rotation
+classes are in the turned world: :func:`world_rotations` turns them back.
 """
 
 from __future__ import annotations
@@ -19,6 +26,7 @@ import torch
 import torch.nn.functional as F
 from mepnet import _brickgeom as _bg
 from mepnet.detector.config import ModelConfig
+from mepnet.geom import rotate_lattice
 from mepnet.manual import ComponentRef, Step, StepTruth, make_camera
 from mepnet.state import change_map, state_projection
 
@@ -39,6 +47,39 @@ def edge_channel(rgb: np.ndarray) -> np.ndarray:
     p = np.pad(g, 1, mode="edge")
     lap = 4 * g - p[:-2, 1:-1] - p[2:, 1:-1] - p[1:-1, :-2] - p[1:-1, 2:]
     return np.clip(np.abs(lap) * 4.0, 0.0, 1.0)
+
+
+def canonical_turn(camera: dict[str, Any]) -> int:
+    """Quarter turns about +y (0..3) that bring the camera's azimuth into [180, 270)."""
+    return int(np.ceil((180.0 - float(camera["azimuth"]) % 360.0) / 90.0)) % 4
+
+
+def turned_view(
+    base: _bg.Assembly, camera: dict[str, Any], turn: int
+) -> tuple[_bg.Assembly, dict[str, Any]]:
+    """The base shape and camera with the world turned by ``turn`` quarter turns about +y (the
+    picture is the same)."""
+    if turn % 4 == 0:
+        return base, camera
+    turned = _bg.Assembly()
+    for iid, comp, yaw, t in base.instances():
+        turned.add(comp, (yaw + turn) % 4, rotate_lattice(t, turn), base.colour(iid))
+    return turned, {**camera, "azimuth": float(camera["azimuth"]) + 90.0 * turn}
+
+
+def world_rotations(rotations: np.ndarray, turn: int) -> np.ndarray:
+    """Rotation-class probabilities (..., 7) of the turned world (:func:`turned_view`) in the
+    manual's world: yaw ``c`` there is yaw ``c - turn`` here (class 0: 4-fold symmetric; 1-2:
+    2-fold, yaw mod 2; 3-6: no symmetry, yaw mod 4)."""
+    if turn % 4 == 0:
+        return rotations
+    out = np.empty_like(rotations)
+    out[..., 0] = rotations[..., 0]
+    for k in range(2):
+        out[..., 1 + (k - turn) % 2] = rotations[..., 1 + k]
+    for k in range(4):
+        out[..., 3 + (k - turn) % 4] = rotations[..., 3 + k]
+    return out
 
 
 def camera_vector(camera: dict[str, Any]) -> np.ndarray:
@@ -116,6 +157,8 @@ def make_sample(
     )
     if augment and ids is not None:
         rgb, ids, cam, kps = _augment(rgb, ids, cam, kps, rng)
+    turn = canonical_turn(cam)
+    base, cam = turned_view(base, cam, turn)
     # keypoints at the network's resolution
     kps = {k: v * (cfg.image_size / rgb.shape[1]) for k, v in kps.items()}
     # resize to the network's size (nearest for ids)
@@ -168,7 +211,8 @@ def make_sample(
             inst_slot[k_inst] = s
             inst_cell[k_inst] = cell
             inst_off[k_inst] = (cx - cell[0], cy - cell[1])
-            inst_rot[k_inst] = _bg.rotation_class(comp.symmetry, truth.instances[iid].yaw)
+            yaw = (truth.instances[iid].yaw + turn) % 4
+            inst_rot[k_inst] = _bg.rotation_class(comp.symmetry, yaw)
             inst_valid[k_inst] = 1.0
             k_inst += 1
     state_index, state_maps = state_projection(base, cam, cfg.image_size, cfg.base_grid)
@@ -189,6 +233,7 @@ def make_sample(
         "inst_offset": torch.from_numpy(inst_off),
         "inst_rot": torch.from_numpy(inst_rot),
         "inst_valid": torch.from_numpy(inst_valid),
+        "turn": torch.tensor(turn, dtype=torch.int64),
     }
     return StepSample(tensors=t)
 

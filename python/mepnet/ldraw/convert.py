@@ -5,7 +5,8 @@ the 72-part library are replaced by a library part of the same footprint and hei
 exists (measured on the real part geometry of an LDraw library), otherwise dropped, as the paper
 did for its Classics and Architecture sets. Every substitution and drop is recorded in
 ``manual.json`` under ``source``. Images are rendered with brickgeom's renderer and a
-manual-style camera (elevation 30, azimuth 225, framed to the shape after each step).
+manual-style camera (one view per model, the front-left three-quarter view of LDraw tools:
+elevation 30, azimuth 315; framed to the shape after each step).
 
 Colours follow LDraw's inheritance (:func:`mepnet.ldraw.io.resolve_colour`): a line in colour 16
 takes the colour of the reference placing its model, through any depth of submodels, starting

@@ -17,7 +17,7 @@ from mepnet.cli import note
 from mepnet.detector.config import ModelConfig
 from mepnet.detector.decode import decode
 from mepnet.detector.net import MEPNet
-from mepnet.detector.targets import collate, component_slots, make_sample
+from mepnet.detector.targets import collate, component_slots, make_sample, world_rotations
 from mepnet.errors import ConfigError
 from mepnet.stage2.base import LIFTS, Prediction, Predictor, StepContext
 from mepnet.stage2.keypoint import DetectedType, lift_keypoints
@@ -77,7 +77,11 @@ class MEPNetPredictor(Predictor):
             if change is None and self.use_change:
                 change = sample.tensors["state_maps"][9].numpy()
             counts = [sum(ctx.step.components[e].count for e in slots[i][1]) for i in chunk]
-            dets = decode(out, counts, self.cfg, (w, h), change)
+            turn = int(sample.tensors["turn"])
+            dets = [
+                dataclasses.replace(d, rotations=world_rotations(d.rotations, turn))
+                for d in decode(out, counts, self.cfg, (w, h), change)
+            ]
             types += [
                 (slots[i][1], DetectedType(slots[i][1][0], ctx.components[slots[i][0]], c, d))
                 for i, c, d in zip(chunk, counts, dets, strict=True)

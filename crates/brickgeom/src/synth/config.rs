@@ -27,8 +27,13 @@ pub struct SynthConfig {
     pub visibility: f32,
     /// Camera elevation: centre and half range (degrees).
     pub elevation: (f64, f64),
-    /// Camera azimuth: centre and half range (degrees).
+    /// Camera azimuth: centre and half range (degrees). The default, 315 +- 10, is the
+    /// front-left three-quarter view instruction tools use (the camera on LDraw's front, -z,
+    /// which is the lattice's +z, and on its left, -x).
     pub azimuth: (f64, f64),
+    /// Probability that a build is seen from the other front three-quarter view: its azimuth
+    /// mirrored about the front (`360 - azimuth`, front-right for the default).
+    pub p_mirror_view: f64,
     /// Fraction of the frame the shape fills: range.
     pub fill: (f64, f64),
     /// Image side in pixels.
@@ -54,8 +59,9 @@ impl Default for SynthConfig {
             max_step_instances: 10,
             max_step_types: 5,
             visibility: 0.25,
-            elevation: (30.0, 10.0),
-            azimuth: (225.0, 10.0),
+            elevation: (27.5, 12.5),
+            azimuth: (315.0, 10.0),
+            p_mirror_view: 0.5,
             fill: (0.6, 0.9),
             image_size: 256,
             supersample: 1,
@@ -107,7 +113,11 @@ impl SynthConfig {
                 self.visibility
             ));
         }
-        for (name, p) in [("p_submodule", self.p_submodule), ("p_stack", self.p_stack)] {
+        for (name, p) in [
+            ("p_submodule", self.p_submodule),
+            ("p_stack", self.p_stack),
+            ("p_mirror_view", self.p_mirror_view),
+        ] {
             if !(0.0..=1.0).contains(&p) {
                 return bad(format!("{name} must be a probability in [0, 1], got {p}"));
             }

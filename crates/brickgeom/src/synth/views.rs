@@ -23,9 +23,12 @@ pub(super) struct ViewSampler {
 
 impl ViewSampler {
     pub(super) fn new(cfg: &SynthConfig, rng: &mut Rng) -> Self {
+        let elevation = rng.around(cfg.elevation.0, cfg.elevation.1);
+        let azimuth = rng.around(cfg.azimuth.0, cfg.azimuth.1);
+        let mirrored = rng.f64() < cfg.p_mirror_view;
         ViewSampler {
-            elevation: rng.around(cfg.elevation.0, cfg.elevation.1),
-            azimuth: rng.around(cfg.azimuth.0, cfg.azimuth.1),
+            elevation,
+            azimuth: if mirrored { 360.0 - azimuth } else { azimuth },
             fill: cfg.fill,
         }
     }
