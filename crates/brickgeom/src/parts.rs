@@ -424,7 +424,9 @@ fn slope31(w: i32) -> Shape {
 
 /// Slope 45 1x2 triple (15571): a 4-LDU base slab under a pyramid whose apex is at the top of
 /// the vertical back face (0, 0, 10); front and sides slope at 45°. The underside holds one
-/// stud at its centre only (blocks at |x| in [6.5, 16] exclude the two grid positions).
+/// stud at each grid position and at the centre: its opening is one 32 x 12 LDU slot whose
+/// walls are 6 LDU from each of the three points (LDraw's inverted `box2-9p` at |x| in
+/// [6.5, 16] are recesses, not blocks), like the cavity of a 1x2 brick.
 fn triple_slope() -> Shape {
     let v = vec![
         [-20.0, -24.0, -10.0],
@@ -448,7 +450,7 @@ fn triple_slope() -> Shape {
         vec![7, 8, 4],
     ];
     let body = vec![Solid::Convex { vertices: v, faces }];
-    Shape::new(body, Vec::new(), vec![[0, -3, 0]], 1)
+    Shape::new(body, Vec::new(), Rect::centred(2, 1).underside(-3), 1)
 }
 
 /// Brick 1x2 with curved top (37352): the top is a quarter circle of radius 20 centred at
@@ -553,9 +555,17 @@ fn table() -> Vec<(&'static str, &'static str, Category, Shape)> {
     // only the stud3a at z = -30 makes a half position.
     let mut slope33_narrow = slope(1, 3, 3);
     slope33_narrow.anti_studs.retain(|p| p[2] != -1);
-    // 4460b's underside has a divider between its two stud positions: no half position.
-    let mut slope75 = slope(1, 2, 9);
-    slope75.anti_studs.retain(|p| p[2] != -1);
+    // 4460b's 12-LDU cavity has no divider at stud height: ribs 5 LDU either side of the half
+    // position hold a stud there, as at its two grid positions.
+    let slope75 = slope(1, 2, 9);
+    // 4150's cross-shaped underside stud fills the centre (its arms reach about 8 LDU out), so
+    // no stud goes there; a stud fits at each grid position and at each edge midpoint (the
+    // tile offset by half a stud, on two studs), between the cross and the 16-LDU inner ring.
+    let mut round_tile = round(2, 1, &round2_tile, false);
+    round_tile.anti_studs = Rect::centred(2, 2).grid(-1);
+    round_tile
+        .anti_studs
+        .extend([[-1, -1, 0], [0, -1, -1], [0, -1, 1], [1, -1, 0]]);
 
     vec![
         ("3024", "Plate  1 x  1", Simple, brick(1, 1, 1)),
@@ -637,12 +647,11 @@ fn table() -> Vec<(&'static str, &'static str, Category, Shape)> {
         ("3029", "Plate  4 x 12", Simple, brick(12, 4, 1)),
         ("3070", "Tile  1 x  1 without Groove", Tile, tile(1, 1)),
         ("2431", "Tile  1 x  4 with Groove", Tile, tile(4, 1)),
-        // The cross underside stud sits at the tube position between the four grid points.
         (
             "4150",
             "Tile  2 x  2 Round with Cross Underside Stud",
             Tile,
-            round(2, 1, &round2_tile, false),
+            round_tile,
         ),
         ("6636", "Tile  1 x  6", Tile, tile(6, 1)),
         ("3068b", "Tile  2 x  2 with Groove", Tile, tile(2, 2)),

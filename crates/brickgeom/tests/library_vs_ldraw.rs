@@ -110,39 +110,15 @@ const POST_ANTI_STUDS: &[&str] = &[
 
 /// Library anti-studs (part frame) where no stud of a part below fits in the real part:
 /// (id, points, why). Reported as library errors; listed so that the rest of the part stays
-/// checked.
-const BLOCKED_ANTI_STUDS: &[(&str, &[Cell], &str)] = &[(
-    "4150",
-    &[[0, -1, 0]],
-    "the cross-shaped underside stud stands at the centre, its arms reaching about 8 LDU \
-     out: neither a solid nor a hollow stud fits there (it sits between the four studs of \
-     the grid positions instead)",
-)];
+/// checked. None now: 4150's centre anti-stud, blocked by its cross-shaped underside stud, was
+/// the one, and the library has dropped it.
+const BLOCKED_ANTI_STUDS: &[(&str, &[Cell], &str)] = &[];
 
 /// Lattice points (part frame) where a stud fits under the real part, held by its underside,
-/// but the library has no anti-stud: (id, points, why). Reported as library omissions.
-const OMITTED_ANTI_STUDS: &[(&str, &[Cell], &str)] = &[
-    (
-        "4150",
-        &[[-1, -1, 0], [0, -1, -1], [0, -1, 1], [1, -1, 0]],
-        "the edge midpoints: a stud fits between two arms of the cross stud, inside the \
-         16-LDU inner ring (the tile offset by half a stud, on two studs)",
-    ),
-    (
-        "15571",
-        &[[-1, -3, 0], [1, -3, 0]],
-        "the two grid positions: the underside opening is one 32 x 12 LDU slot (the inverted \
-         box2-9p at |x| in [6.5, 16] are the slot's walls, not blocks); a stud at each grid \
-         point fits it, clear of the nubs that hold the centre stud (6.1 LDU from its axis), \
-         so the part also sits on two studs like any 1x2",
-    ),
-    (
-        "4460b",
-        &[[0, -9, 1]],
-        "the half position: there is no divider at stud height, the 12-LDU cavity has ribs at \
-         5 LDU either side of it that hold a stud there",
-    ),
-];
+/// but the library has no anti-stud: (id, points, why). Reported as library omissions. None
+/// now: 4150's edge midpoints, 15571's grid positions and 4460b's half position were found
+/// here and are library anti-studs.
+const OMITTED_ANTI_STUDS: &[(&str, &[Cell], &str)] = &[];
 
 // ---------------------------------------------------------------------------------------------
 // Frames and placements.
