@@ -27,7 +27,7 @@ from mepnet.cli import ArgumentParser, run
 from mepnet.errors import ConfigError, ManualFormatError, OutputError
 from mepnet.files import atomic_folder, check_replaceable
 from mepnet.geom import BrickGeomError, manual_camera, submodule_from_placed
-from mepnet.ldraw.io import ModelCheck, StepCheck, StepItem, build_order, check
+from mepnet.ldraw.io import ModelCheck, StepCheck, StepItem, build_order, check, resolve_colour
 
 #: The writer name in the manifest of the LDraw path's step-image folders.
 LDRAW_WRITER = "mepnet.infer (LDraw steps)"
@@ -91,7 +91,15 @@ def _render_steps(checks: list[ModelCheck], out: Path, size: int) -> int:
     written = 0
     comps: dict[int, _bg.Component] = {}
     lift = 1024  # model frames may reach below y = 0; build high, then drop onto the ground
-    for m in build_order(checks):
+    order = build_order(checks)
+    # LDraw's colour inheritance: a submodel is drawn in the colour of the first reference that
+    # places it (16 resolved from the main model down), as instruction tools draw its steps
+    inherited = {0: 16}
+    for m in reversed(order):  # parents before the submodels they place
+        for it in (it for items in checks[m].items for it in items):
+            if it.submodel is not None and it.submodel not in inherited:
+                inherited[it.submodel] = resolve_colour(it.colour, inherited.get(m, 16))
+    for m in order:
         model = checks[m]
         steps = [
             [
@@ -99,7 +107,7 @@ def _render_steps(checks: list[ModelCheck], out: Path, size: int) -> int:
                     _component(it, comps),
                     it.yaw,
                     (it.t[0], it.t[1] + lift, it.t[2]),
-                    it.colour,
+                    resolve_colour(it.colour, inherited.get(m, 16)),
                 )
                 for it in items
                 if it.blocker is None
