@@ -384,3 +384,64 @@ def abys_step(
     time_limit_s: float = 60.0,
 ) -> list[tuple[tuple[int, _Int3] | None, float, bool]]: ...
 def rotation_class(symmetry: int, yaw: int) -> int: ...
+
+# Camera estimation kernels (wrapped by mepnet.cameras)
+def foreground_mask(
+    rgb: npt.NDArray[np.uint8], threshold: float = 30.0, min_area: int = 16
+) -> tuple[npt.NDArray[np.bool_], tuple[int, int, int]]: ...
+def edge_directions(
+    rgb: npt.NDArray[np.uint8], bins: int = 360, sigma: float = 1.5, rho: float = 2.5
+) -> npt.NDArray[np.float64]: ...
+def box_silhouette(
+    assembly: Assembly, camera: Camera, width: int, height: int
+) -> npt.NDArray[np.bool_]: ...
+def search_orientations(
+    assembly: Assembly,
+    foreground: npt.NDArray[np.bool_],
+    candidates: list[tuple[float, float, float]],
+    work: int = 64,
+) -> list[tuple[float, Camera]]: ...
+def search_placements(
+    assembly: Assembly,
+    component: Component,
+    foreground: npt.NDArray[np.bool_],
+    orientations: list[tuple[float, float, float]],
+    work: int = 64,
+    k: int = 8,
+) -> list[tuple[float, int, _Int3, Camera]]: ...
+@final
+class FitPicture:
+    def __new__(cls, rgb: npt.NDArray[np.uint8]) -> FitPicture: ...
+    @property
+    def size(self) -> tuple[int, int]: ...
+
+@final
+class CameraFit:
+    @property
+    def camera(self) -> Camera: ...
+    @property
+    def agree(self) -> float: ...
+    @property
+    def inside(self) -> float: ...
+    @property
+    def iou(self) -> float: ...
+    @property
+    def cost(self) -> float: ...
+    @property
+    def samples(self) -> int: ...
+    @property
+    def moved_px(self) -> float: ...
+
+def fit_camera(
+    assembly: Assembly,
+    picture: FitPicture,
+    foreground: npt.NDArray[np.bool_],
+    init: Camera,
+    free: tuple[bool, bool, bool, bool, bool, bool] = ...,
+    levels: list[int] = ...,
+    rerender_px: float = 0.0,
+    iterations: int = 8,
+    tukey: float = 0.3,
+    samples: int = 6000,
+    prior: tuple[Sequence[float], Sequence[float]] | None = None,
+) -> CameraFit: ...

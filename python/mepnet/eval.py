@@ -31,6 +31,7 @@ Metrics (paper §5.1), written as JSON with the keys of DESIGN §8:
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 import os
 import sys
@@ -42,12 +43,21 @@ import numpy as np
 
 from mepnet import _brickgeom as _bg
 from mepnet import metrics
+from mepnet.cameras import drop_cameras
 from mepnet.cli import ArgumentParser
 from mepnet.cli import run as run_cli
 from mepnet.errors import ConfigError, ManualFormatError
 from mepnet.files import atomic_write_json, check_output_file
+from mepnet.frames import moved, symmetries
 from mepnet.manual import ComponentRef, answers_of, iter_manual_dirs, load_manual
-from mepnet.plan import accuracy, built_exactly, run_manual, shape_key
+from mepnet.plan import (
+    accuracy,
+    built_exactly,
+    predicted_placements,
+    run_manual,
+    shape_key,
+    step_motion,
+)
 from mepnet.stage2 import LIFTS, PREDICTORS, Prediction, Predictor, make_predictor
 
 #: The ``written_by`` mark of the metrics files ``--json`` writes (and may replace).
@@ -199,14 +209,64 @@ def _canonical(
     return sorted(out, key=key), sorted(gt, key=key)
 
 
+#: Where the cameras come from: the manual (``given``) or the pictures (``estimated``).
+CAMERAS = ("given", "estimated")
+
+
+def _camera_errors(man: Any, run: Any, b: Any, s: Any) -> tuple[float, float] | None:
+    """Rotation error (degrees) and mean reprojection error (pixels) of the true shape's voxel
+    corners after the step, of a step's estimated camera against the manual's, in the truth's
+    frame (the step's motion undone); None when the step has no estimate or no true camera."""
+    if s.camera is None or s.camera.source != "estimated" or s.camera.camera is None:
+        return None
+    page = (man.main if b.key is None else man.submodules[b.key]).steps[s.index - 1]
+    if page.camera is None:
+        return None
+    true_cam = page.camera_object()
+    answers = answers_of(man).build(b.key)
+    shape = answers.assembly_before(s.index, run.components)
+    occ, origin = shape.occupancy()
+    cells = np.argwhere(occ > 0) + np.asarray(origin)
+    if len(cells) == 0:
+        return None
+    corners = np.unique(
+        np.concatenate([cells + d for d in np.ndindex(2, 2, 2)]), axis=0
+    ) * np.array([10.0, 8.0, 10.0])
+    motion = step_motion(run, b, s)
+    motions = [motion]
+    if s.index == 1:  # a symmetric first shape is aligned as well by its symmetries
+        motions += [motion.after(m) for m in symmetries(predicted_placements(run, s))]
+    est = s.camera.camera
+    w, h = man.image_size
+    pt, _ = true_cam.project(corners, w, h)
+    best: tuple[float, float] | None = None
+    for m in motions:
+        back = m.inverse()  # truth frame -> the estimate's frame
+        turn = back.yaw_matrix()
+        in_est = corners @ turn.T + np.asarray(back.shift) * np.array([10.0, 8.0, 10.0])
+        pe, _ = est.project(in_est, w, h)
+        reproj = float(np.linalg.norm(pe - pt, axis=1).mean())
+        r = np.asarray(est.rotation()) @ turn @ np.asarray(true_cam.rotation()).T
+        rot = math.degrees(math.acos(max(-1.0, min(1.0, (float(np.trace(r)) - 1.0) / 2.0))))
+        if best is None or reproj < best[1]:
+            best = (rot, reproj)
+    return best
+
+
 def evaluate(
     data: str | os.PathLike[str],
     predictor: Predictor,
     autoregressive: bool = False,
     cd_points: int = 10_000,
     progress: bool = True,
+    camera: str = "given",
 ) -> dict[str, Any]:
-    """Evaluate ``predictor`` on every manual under ``data``; returns the metrics dict."""
+    """Evaluate ``predictor`` on every manual under ``data``; returns the metrics dict.
+    ``camera="estimated"``: the manuals' cameras are dropped and estimated from the pictures
+    (:mod:`mepnet.cameras`); poses are then compared up to each build's frame
+    (:mod:`mepnet.frames`) and the camera errors reported."""
+    if camera not in CAMERAS:
+        raise ConfigError(f"unknown camera source '{camera}' (choose from {', '.join(CAMERAS)})")
     from tqdm import tqdm
 
     dirs = list(iter_manual_dirs(data))
@@ -217,6 +277,10 @@ def evaluate(
         answers_of(m)
     scorer = Scorer(cd_points)
     mtc, set_cd = [], []
+    cam_first: list[tuple[float, float]] = []
+    cam_later: list[tuple[float, float]] = []
+    cam_seconds: list[float] = []
+    cam_failures = cam_steps = 0
     ar_right = ar_total = manuals_exact = 0
     bar = tqdm(
         total=sum(len(m.all_steps()) * (2 if autoregressive else 1) for m in manuals),
@@ -228,8 +292,9 @@ def evaluate(
     try:
         for man in manuals:
             answers = answers_of(man)
+            source = drop_cameras(man) if camera == "estimated" else man
             # teacher-forced: every step on the true shape (the paper's Table 1)
-            run = run_manual(man, predictor, teacher_forced=True, on_step=lambda: bar.update(1))
+            run = run_manual(source, predictor, teacher_forced=True, on_step=lambda: bar.update(1))
             comps = run.components
             wrong = 0
             for b in run.builds:
@@ -240,16 +305,30 @@ def evaluate(
                     scorer.seconds.append(s.seconds)
                     gt = [(i.component, i.yaw, i.t) for i in s.truth.placed()]
                     supported = [v.attach != "unsupported" for v in s.truth.answers.views]
-                    wrong += int(not scorer.step(s.predictions, gt, comps, scale, supported))
+                    preds = _in_truth_frame(run, b, s)
+                    wrong += int(not scorer.step(preds, gt, comps, scale, supported))
+                    if s.camera is not None and s.camera.source == "estimated":
+                        cam_steps += 1
+                        cam_seconds.append(s.camera.seconds)
+                        cam_failures += int(s.camera.camera is None)
+                        err = _camera_errors(man, run, b, s)
+                        if err is not None:
+                            (cam_first if s.index == 1 else cam_later).append(err)
             mtc.append(wrong / max(len(man.all_steps()), 1))
             if autoregressive:
                 # the plan a user gets: every step on the predictor's own earlier placements
-                ar = run_manual(man, predictor, on_step=lambda: bar.update(1))
+                ar = run_manual(source, predictor, on_step=lambda: bar.update(1))
                 right, total = accuracy(ar)
                 ar_right += right
                 ar_total += total
                 manuals_exact += int(bool(built_exactly(ar)))
-                placed = [(ar.components[r], y, t) for r, y, t, _ in ar.main.placed()]
+                motion = step_motion(ar, ar.main, ar.main.steps[0]) if ar.main.steps else None
+                placed = [
+                    moved((ar.components[r], y, t, c), motion)[:3]
+                    if motion
+                    else (ar.components[r], y, t)
+                    for r, y, t, c in ar.main.placed()
+                ]
                 gt_final = [(comps[i.component], i.yaw, i.t) for i in answers.main.instances]
                 set_cd.append(
                     scorer.cd(placed, gt_final, _diag(gt_final)) if placed else float("nan")
@@ -293,7 +372,62 @@ def evaluate(
         "supported_component_acc": scorer.supported_correct / scorer.supported
         if scorer.supported
         else None,
+        "camera": camera,
+        **_camera_metrics(camera, cam_first, cam_later, cam_seconds, cam_failures, cam_steps),
     }
+
+
+def _camera_metrics(
+    camera: str,
+    first: list[tuple[float, float]],
+    later: list[tuple[float, float]],
+    seconds: list[float],
+    failures: int,
+    steps: int,
+) -> dict[str, Any]:
+    """Camera errors of the teacher-forced run: rotation (degrees) and mean reprojection of the
+    true shape's voxel corners (pixels), later steps and first steps (in the truth's frame)
+    apart; estimation time per step; steps whose camera could not be estimated."""
+    if camera != "estimated":
+        return {}
+
+    def stats(errs: list[tuple[float, float]], i: int, q: float) -> float | None:
+        return float(np.quantile([e[i] for e in errs], q)) if errs else None
+
+    def mean(errs: list[tuple[float, float]], i: int) -> float | None:
+        return float(np.mean([e[i] for e in errs])) if errs else None
+
+    return {
+        "camera_steps": steps,
+        "camera_failures": failures,
+        "camera_rotation_deg_median": stats(later, 0, 0.5),
+        "camera_rotation_deg_mean": mean(later, 0),
+        "camera_reprojection_px_median": stats(later, 1, 0.5),
+        "camera_reprojection_px_mean": mean(later, 1),
+        "camera_reprojection_px_p90": stats(later, 1, 0.9),
+        "camera_within_1px": sum(e[1] <= 1.0 for e in later) / len(later) if later else None,
+        "camera_first_rotation_deg_median": stats(first, 0, 0.5),
+        "camera_first_reprojection_px_median": stats(first, 1, 0.5),
+        "camera_first_reprojection_px_mean": mean(first, 1),
+        "camera_seconds_per_step": float(np.mean(seconds)) if seconds else None,
+        "camera_median_seconds_per_step": float(np.median(seconds)) if seconds else None,
+        "camera_p95_seconds_per_step": float(np.quantile(seconds, 0.95)) if seconds else None,
+    }
+
+
+def _in_truth_frame(run: Any, b: Any, s: Any) -> list[Prediction]:
+    """A step's predictions moved into the truth's frame (:func:`mepnet.plan.step_motion`;
+    the identity with the cameras the manual states)."""
+    motion = step_motion(run, b, s)
+    if motion.is_identity:
+        return s.predictions
+    out = []
+    for p in s.predictions:
+        if p.placed:
+            yaw, t = motion.apply(p.yaw, p.t)
+            p = dataclasses.replace(p, yaw=yaw, t=t)
+        out.append(p)
+    return out
 
 
 def format_table(rows: list[dict[str, Any]]) -> str:
@@ -325,6 +459,22 @@ def format_table(rows: list[dict[str, Any]]) -> str:
                 f"{'  on its own':14s} {f(r['autoregressive_component_acc'], True):>8s} "
                 f"(the plan built on its own predictions; manuals built exactly right: "
                 f"{f(r['manuals_exact'], True)}%)"
+            )
+    for r in rows:
+        if r.get("camera") == "estimated":
+            lines.append(
+                f"{'  cameras':14s} estimated from the pictures: rotation error median "
+                f"{f(r['camera_rotation_deg_median'])} deg, reprojection median "
+                f"{f(r['camera_reprojection_px_median'])} px (mean "
+                f"{f(r['camera_reprojection_px_mean'])}, within 1 px "
+                f"{f(r['camera_within_1px'], True)}%), first steps "
+                f"{f(r['camera_first_reprojection_px_median'])} px; "
+                f"{r['camera_failures']} of {r['camera_steps']} not estimated; "
+                f"{1000 * (r['camera_seconds_per_step'] or 0):.1f} ms/step"
+            )
+            lines.append(
+                f"{'':14s} (poses compared up to each build's frame: one quarter turn and "
+                "lattice shift per build, fixed by its first step)"
             )
     lines.append(
         f"({rows[0]['n_manuals']} manuals, {rows[0]['n_steps']} steps, {rows[0]['n_components']} components, "
@@ -359,6 +509,13 @@ def main(argv: list[str] | None = None) -> int:
         help="mepnet: lift detections to 3D by synthesis from the masks (default) or by the "
         "paper's keypoint ray search",
     )
+    ap.add_argument(
+        "--camera",
+        choices=CAMERAS,
+        default="given",
+        help="the cameras the manual states (default), or estimated from the pictures with the "
+        "manual's dropped (poses then compared up to each build's frame; camera errors reported)",
+    )
     ap.add_argument("--no-progress", action="store_true")
     args = ap.parse_args(argv)
     return run_cli("mepnet.eval", lambda: _main(args))
@@ -381,7 +538,12 @@ def _main(args: argparse.Namespace) -> int:
         args.predictor, args.sigma, args.seed, args.time_limit, args.weights, args.lift
     )
     result = evaluate(
-        args.data, predictor, args.autoregressive, args.cd_points, not args.no_progress
+        args.data,
+        predictor,
+        args.autoregressive,
+        args.cd_points,
+        not args.no_progress,
+        args.camera,
     )
     print(format_table([result]))
     if args.json:

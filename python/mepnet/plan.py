@@ -16,6 +16,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -23,8 +24,19 @@ from typing import Any
 import numpy as np
 
 from mepnet import _brickgeom as _bg
+from mepnet.cameras import BuildCameras, CameraEstimate
 from mepnet.errors import MepnetError
 from mepnet.files import atomic_folder
+from mepnet.frames import (
+    IDENTITY,
+    Motion,
+    best_motion,
+    candidate_motions,
+    matches,
+    moved,
+    placement_key,
+    symmetries,
+)
 from mepnet.geom import BrickGeomError, submodule_from_placed
 from mepnet.ldraw.io import LDrawFile, LDrawModel, LDrawRef, ldraw_placement
 from mepnet.ldraw.io import write as write_ldraw
@@ -49,6 +61,8 @@ class StepRun:
     seconds: float
     #: the step's answers (None for a manual without answers)
     truth: StepTruth | None = None
+    #: the camera the step was predicted with: given by the page, or estimated
+    camera: CameraEstimate | None = None
 
 
 @dataclass
@@ -78,6 +92,8 @@ class ManualRun:
     teacher_forced: bool
     builds: list[BuildRun]
     components: dict[ComponentRef, _bg.Component]
+    #: motions into the truth's frame, computed on first use (:func:`step_motion`)
+    motions: dict[tuple[int | None, int], Motion] = field(default_factory=dict)
 
     @property
     def main(self) -> BuildRun:
@@ -113,10 +129,10 @@ def run_build(
         raise ManualFormatError(f"{manual.path}: teacher forcing needs the manual's answers")
     run = BuildRun(key, build)
     base = _bg.Assembly()
+    cameras = BuildCameras(manual.image_size)
     for k, step in enumerate(build.steps):
         truth = full_truth = answers.truth(k) if answers is not None else None
         page_step, kept = _missing_entries(components, step)
-        ctx = StepContext(page_step, base.copy(), components, manual.image_size)
         if truth is not None and len(kept) != len(step.components):
             truth = StepTruth(
                 dataclasses.replace(
@@ -124,12 +140,26 @@ def run_build(
                 ),
                 truth.instances,
             )
-        try:
-            preds, seconds = predict_step(predictor, ctx, truth)
-        except (MepnetError, BrickGeomError) as e:
-            if step.where and step.where not in str(e):  # name the manual and the step
-                raise type(e)(f"{step.where}: {e}") from None
-            raise
+
+        def predict(
+            page: Any, truth: StepTruth | None = truth, where: str = step.where
+        ) -> tuple[list[Prediction], float]:
+            ctx = StepContext(page, base.copy(), components, manual.image_size)
+            try:
+                return predict_step(predictor, ctx, truth)
+            except (MepnetError, BrickGeomError) as err:
+                if where and where not in str(err):  # name the manual and the step
+                    raise type(err)(f"{where}: {err}") from None
+                raise
+
+        if step.camera is not None:
+            camera = CameraEstimate.given(step)
+            preds, seconds = predict(page_step)
+            cameras.accept(step, camera, None, _trial_shape(base, preds, components, page_step))
+        else:
+            preds, seconds, camera = _estimated_camera_step(
+                cameras, predict, page_step, base, components, teacher_forced
+            )
         # back to the page's entry numbering, and a failure for every entry left out
         preds = [dataclasses.replace(p, entry=kept[p.entry]) for p in preds]
         for e, c in enumerate(step.components):
@@ -154,10 +184,92 @@ def run_build(
         if teacher_forced:
             for inst in full_truth.placed():  # type: ignore[union-attr]
                 base.add(components[inst.component], inst.yaw, inst.t, inst.colour)
-        run.steps.append(StepRun(k + 1, step.image_path.name, preds, placed, seconds, full_truth))
+        run.steps.append(
+            StepRun(k + 1, step.image_path.name, preds, placed, seconds, full_truth, camera)
+        )
         if on_step is not None:
             on_step()
     return run
+
+
+#: A camera check this good ends the search over a step's camera hypotheses.
+EXPLAINED_IOU, EXPLAINED_AGREE = 0.9, 0.8
+#: Camera hypotheses predicted with at most, per step.
+MAX_HYPOTHESES = 4
+#: A first step is predicted again when fitting the camera to its predicted shape moved it
+#: more than this (pixels, RMS over the shape).
+REPREDICT_PX = 0.5
+
+
+def _trial_shape(
+    base: _bg.Assembly,
+    preds: list[Prediction],
+    components: dict[ComponentRef, _bg.Component],
+    page_step: Any,
+) -> _bg.Assembly:
+    """The base with the predicted components added in their callout colours (those that
+    fit)."""
+    shape = base.copy()
+    for p in preds:
+        if p.placed and p.failure is None:
+            try:
+                colour = page_step.components[p.entry].colour
+                shape.add(components[p.component], p.yaw, p.t, colour)
+            except BrickGeomError:
+                pass
+    return shape
+
+
+def _estimated_camera_step(
+    cameras: BuildCameras,
+    predict: Callable[[Any], tuple[list[Prediction], float]],
+    page_step: Any,
+    base: _bg.Assembly,
+    components: dict[ComponentRef, _bg.Component],
+    teacher_forced: bool,
+) -> tuple[list[Prediction], float, CameraEstimate]:
+    """Predict a step whose page states no camera (:mod:`mepnet.cameras`): with each camera
+    hypothesis in turn until the camera and the predicted shape explain the picture (the best
+    kept); a first step is predicted again with the camera fitted to its predicted shape.
+    Returns the predictions, the predictor's seconds and the camera used. A camera that
+    cannot be estimated fails every component of the step with the reason."""
+    seconds = 0.0
+    spent = 0.0  # camera estimation: every hypothesis made and checked
+    best: tuple[float, list[Prediction], CameraEstimate, Any, _bg.Assembly] | None = None
+    for tried, est in enumerate(cameras.hypotheses(page_step, base, components, teacher_forced)):
+        spent += est.seconds
+        if est.failure is not None or tried == MAX_HYPOTHESES:
+            if best is None:
+                est = dataclasses.replace(est, seconds=spent)
+                cameras.accept(page_step, est, None)
+                preds = [
+                    Prediction(e, c.component, None, None, failure=est.failure)
+                    for e, c in enumerate(page_step.components)
+                    for _ in range(c.count)
+                ]
+                return preds, seconds, est
+            break
+        for again in (False, True):
+            preds, s = predict(dataclasses.replace(page_step, camera=est.step_camera()))
+            seconds += s
+            t0 = time.perf_counter()
+            shape = _trial_shape(base, preds, components, page_step)
+            fit = cameras.check(page_step, shape, est)
+            spent += time.perf_counter() - t0
+            # a first step's camera fitted to its predicted shape: predicted again with it
+            if again or len(base) > 0 or fit is None or fit.moved_px <= REPREDICT_PX:
+                break
+            est = dataclasses.replace(est, camera=fit.camera, fit=fit.agree)
+        score = -1.0 if fit is None else fit.iou + fit.agree
+        if best is None or score > best[0]:
+            best = (score, preds, est, fit, shape)
+        if fit is not None and fit.iou >= EXPLAINED_IOU and fit.agree >= EXPLAINED_AGREE:
+            break
+    assert best is not None
+    _, preds, est, fit, shape = best
+    est = dataclasses.replace(est, seconds=spent)
+    cameras.accept(page_step, est, fit, shape)
+    return preds, seconds, est
 
 
 def run_manual(
@@ -200,10 +312,76 @@ def _ref_json(ref: ComponentRef, manual: Manual) -> dict[str, Any]:
     return {"submodule": ref.submodule, "name": manual.submodules[int(ref.submodule)].name}  # type: ignore[arg-type]
 
 
-def correct(run: ManualRun, step: StepRun, p: Prediction) -> bool | None:
-    """Whether a prediction equals one of its step's true placements (None without answers)."""
+# ---------------------------------------------------------------------------------------------
+# Scoring against the answers, up to the frame when cameras were estimated (mepnet.frames)
+
+
+def frame_free(b: BuildRun) -> bool:
+    """Whether the build's frame is the convention's: its first step's camera was estimated
+    (then the plan is compared with the truth up to a rigid lattice motion, :mod:`mepnet.frames`)."""
+    first = b.steps[0].camera if b.steps else None
+    return first is not None and first.source == "estimated"
+
+
+def predicted_placements(run: ManualRun, s: StepRun) -> list[Any]:
+    """A step's placed components ``(component, yaw, t, colour)``, as predicted."""
+    return [(run.components[r], y, t, c) for r, y, t, c in (p for p in s.placed if p is not None)]
+
+
+def _true(run: ManualRun, s: StepRun) -> list[Any]:
+    assert s.truth is not None
+    comps = run.manual.answers.components(run.manual)
+    return [(comps[i.component], i.yaw, i.t, i.colour) for i in s.truth.placed()]
+
+
+def step_motion(run: ManualRun, b: BuildRun, s: StepRun) -> Motion:
+    """The motion taking a step's predictions into the truth's frame: the identity with the
+    cameras the manual states; with estimated ones, autoregressive: one motion per build (from
+    those aligning a first-step prediction with a true first-step instance, the one under which
+    most of the build is right); teacher-forced: for the first step the best such motion, for
+    a later step the identity or a motion mapping the true base onto itself, whichever makes
+    more of the step right (a symmetric base looks the same either way)."""
+    if s.truth is None or not frame_free(b):
+        return IDENTITY
+    key = (b.key, 0 if not run.teacher_forced else s.index)
+    if key in run.motions:
+        return run.motions[key]
+    first = b.steps[0]
+    if not run.teacher_forced:
+        candidates = candidate_motions(predicted_placements(run, first), _true(run, first))
+        pairs = [
+            (predicted_placements(run, x), _true(run, x)) for x in b.steps if x.truth is not None
+        ]
+        best, hits = IDENTITY, -1
+        for m in candidates:
+            h = sum(matches(pred, true, m) for pred, true in pairs)
+            if h > hits:
+                best, hits = m, h
+        motion = best
+    elif s.index == 1:
+        pred, true = predicted_placements(run, s), _true(run, s)
+        motion, _ = best_motion(pred, true, candidate_motions(pred, true))
+    else:
+        pred, true = predicted_placements(run, s), _true(run, s)
+        ident = matches(pred, true)
+        motion = IDENTITY
+        if pred and ident < len(true):
+            before = [x for y in b.steps[: s.index - 1] for x in _true(run, y)]
+            motion, hits = best_motion(pred, true, [IDENTITY, *symmetries(before)])
+    run.motions[key] = motion
+    return motion
+
+
+def correct(run: ManualRun, step: StepRun, p: Prediction, b: BuildRun | None = None) -> bool | None:
+    """Whether a prediction equals one of its step's true placements (None without answers);
+    ``b``: the step's build, when the comparison is up to the frame (:func:`step_motion`)."""
     if step.truth is None or not p.placed:
         return None if step.truth is None else False
+    if b is not None and frame_free(b):
+        motion = step_motion(run, b, step)
+        colour = b.build.steps[step.index - 1].components[p.entry].colour
+        mine = placement_key(moved((run.components[p.component], p.yaw, p.t, colour), motion))  # type: ignore[arg-type]
+        return mine in {placement_key(x) for x in _true(run, step)}
     comp = run.components[p.component]
     return any(
         i.component == p.component and comp.same_placement(i.yaw, i.t, p.yaw, p.t)
@@ -216,6 +394,11 @@ def step_matches(run: ManualRun, step: StepRun) -> int:
     prediction per instance; rotation modulo symmetry); 0 without answers."""
     if step.truth is None:
         return 0
+    build = next((b for b in run.builds if any(x is step for x in b.steps)), None)
+    if build is not None and frame_free(build):
+        return matches(
+            predicted_placements(run, step), _true(run, step), step_motion(run, build, step)
+        )
     used: set[int] = set()
     hits = 0
     for inst in step.truth.placed():
@@ -271,6 +454,9 @@ def built_exactly(run: ManualRun) -> bool | None:
     truth_comps = answers.components(run.manual)
     truth = [(truth_comps[i.component], i.yaw, i.t, i.colour) for i in answers.main.instances]
     built = [(run.components[r], y, t, c) for r, y, t, c in run.main.placed()]
+    if frame_free(run.main) and run.main.steps:
+        motion = step_motion(run, run.main, run.main.steps[0])
+        built = [moved(x, motion) for x in built]
     return shape_key(built) == shape_key(truth)
 
 
@@ -294,13 +480,15 @@ def plan_json(run: ManualRun) -> dict[str, Any]:
                     rec.update(yaw=pl[1], lattice=list(pl[2]), ldu={"position": pos, "matrix": mat})
                     err = p.extra.get("error_px")
                     rec["confidence"] = float(np.exp(-err / 2.0)) if err is not None else None
-                ok = correct(run, s, p)
+                ok = correct(run, s, p, b)
                 if ok is not None:
                     rec["correct"] = ok
                 records.append(rec)
-            out.append(
-                {"index": s.index, "image": s.image, "seconds": s.seconds, "components": records}
-            )
+            rec_step: dict[str, Any] = {"index": s.index, "image": s.image, "seconds": s.seconds}
+            if s.camera is not None:
+                rec_step.update(s.camera.to_json())
+            rec_step["components"] = records
+            out.append(rec_step)
         return out
 
     recs = [c for b in run.builds for s in steps(b) for c in s["components"]]
@@ -401,6 +589,7 @@ def write_plan(run: ManualRun, out: str | os.PathLike[str]) -> dict[str, Any]:
             )
             for s, step in zip(b.steps, b.build.steps, strict=True):
                 new = [(run.components[r], y, t) for r, y, t, _ in (p for p in s.placed if p)]
-                img = overlay(step.image(), new, step.camera_object())
+                cam = s.camera.camera if s.camera is not None else step.camera_object()
+                img = step.image() if cam is None else overlay(step.image(), new, cam)
                 Image.fromarray(img).save(tmp / f"{prefix}overlay_{s.index:03d}.png")
     return plan

@@ -8,6 +8,7 @@
 // Return types of PyO3 functions (tuples of bound numpy arrays) are long by nature.
 #![allow(clippy::type_complexity)]
 
+mod camfit;
 mod errors;
 mod geom;
 mod ldraw;
@@ -20,6 +21,7 @@ use pyo3::prelude::*;
 
 #[pymodule]
 fn _brickgeom(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    camfit::register(m)?;
     errors::register(m)?;
     geom::register(m)?;
     ldraw::register(m)?;

@@ -6,6 +6,7 @@
 
 pub mod assembly;
 pub mod camera;
+pub mod camfit;
 pub mod colours;
 pub mod component;
 pub mod error;

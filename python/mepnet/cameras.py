@@ -1,0 +1,847 @@
+"""Cameras estimated from the pictures (DESIGN §4): a manual in the wild never states its camera,
+so mepnet fits each step's weak-perspective camera to the step's picture from what it knows.
+
+The fine fit is brickgeom's (:func:`mepnet._brickgeom.fit_camera`): a known shape is rendered
+with the current camera, and the camera moves until the picture shows the rendered colours where
+each rendered surface point projects (robust Gauss-Newton over blurred copies, coarse to fine;
+pixels that something new hides drop out as outliers). What shape, which picture and where to
+start is decided here, per build, step after step (:class:`BuildCameras`):
+
+- **A later step** (a base shape exists). The previous picture shows exactly the base (the
+  shape after the previous step), so the previous step's camera is first fitted again to the
+  base there, all six parameters (the *anchor*). Its orientation is carried to this step, where
+  only zoom and pan change: scale and translation start from a sweep (the base's coarse
+  silhouette at a range of scales, each placed by FFT cross-correlation with this picture's
+  foreground so that it lies inside it) and are fitted to the base in this picture, the new
+  parts hiding some of it. If the base does not fit (the manual turned the model round), the
+  three quarter turns of the azimuth are tried the same way. Without a usable previous camera
+  the orientation is searched over the whole view sphere (coarse silhouettes, then fits).
+- **The first step** (nothing built yet): no picture can fix the world frame (any quarter turn
+  and lattice shift of the whole build looks the same), so it is fixed by convention: the
+  azimuth lies in the canonical quarter [180, 270). A step adding one component: the orientation
+  is searched and fitted with that component standing at the origin. Several: a prior view
+  (elevation 27.5, azimuth 225) framed to the foreground; after the predictor placed the step the
+  camera is fitted to the predicted shape and the step predicted again (:meth:`refit_first`).
+- **Failure.** A blank picture, or a best fit that explains the picture badly (the known shape's
+  silhouette off the drawing, or its colours not where the camera puts them): the step gets
+  :attr:`CameraEstimate.failure` and the plan loop fails its components with that reason.
+
+Estimation reads the page only (pictures, callouts) and the shapes the plan loop hands it
+(the base: the predicted shape, or the true one under teacher forcing); never a camera, pose or
+instance map from the answers.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from mepnet import _brickgeom as _bg
+from mepnet.frames import Motion, best_motion, candidate_motions
+from mepnet.geom import LDU_PER_CELL, bounds_corners
+from mepnet.manual import ComponentRef, Step
+
+__all__ = [
+    "CameraEstimate",
+    "BuildCameras",
+    "camera_dict",
+    "drop_cameras",
+]
+
+#: The first step's convention: elevation, and the canonical quarter of azimuths [180, 270).
+FIRST_ELEVATION = 27.5
+FIRST_AZIMUTH = 225.0
+#: The views instruction tools use (front-left / front-right three-quarter): preferred among
+#: orientations that fit equally well (a symmetric shape).
+FRONT_AZIMUTHS = (315.0, 45.0)
+#: Foreground: page-colour distance (0..255) and the smallest kept speck (pixels).
+FG_THRESHOLD = 30.0
+FG_MIN_AREA = 16
+#: A picture with less drawing than this share of its pixels is blank.
+MIN_DRAWING = 0.001
+#: Side of the reduced foreground the scale sweep and the orientation search work at (pixels).
+WORK_PX = 64
+#: Elevations and azimuths of the orientation search (degrees).
+SEARCH_ELEVATIONS = (12.5, 17.5, 22.5, 27.5, 32.5, 37.5, 42.5)
+SEARCH_AZIMUTHS = tuple(float(a) for a in range(0, 360, 10))
+#: Edge orientation: histogram bins over 180 degrees, the elevations searched, grid step.
+EDGE_BINS = 360
+EDGE_ELEVATIONS = (5.0, 60.0)
+EDGE_STEP = 0.25
+#: Two orientations closer than this (degrees of elevation, or of azimuth modulo a quarter
+#: turn) are the same as far as edges can tell.
+ORIENTATION_TOL = 1.5
+#: Fit levels (box-blur radii, coarse to fine) from a rough start and from a close one.
+LEVELS_ROUGH = (4, 1, 0)
+LEVELS_CLOSE = (1, 0)
+#: Fit levels from a sweep's start, and of the check after prediction.
+LEVELS_INSIDE = (4, 1, 0)
+LEVELS_CHECK = (1, 0)
+#: A fit to a picture that shows exactly the shape is good when this share of the shape's
+#: pixels agree in colour and the silhouettes overlap this much.
+FULL_AGREE, FULL_IOU = 0.6, 0.5
+#: A fit to a picture that shows the shape with new parts on it is good when this share of
+#: the shape's silhouette lies on the drawing and this share of its pixels agree.
+PART_INSIDE, PART_AGREE = 0.93, 0.45
+#: Below this agreement a fit is no hypothesis at all (a base mostly hidden still shows this).
+MIN_AGREE = 0.15
+#: A fit of the base this good leaves no doubt (no other hypotheses are tried).
+CONFIDENT_INSIDE, CONFIDENT_AGREE = 0.97, 0.8
+#: A base of at most this many components may say little about the view: its orientation is
+#: checked against the picture's edges.
+SMALL_BASE = 2
+#: Fits whose scores differ by less than this are ties (broken by the front-view prior).
+TIE = 0.02
+#: Placements of a step's one component fitted with the base when the base alone is unsure.
+JOINT_STARTS = 3
+#: Pixels of the known shape (and of the page around it) a fit samples at most.
+FIT_SAMPLES = 3000
+#: Gauss-Newton iterations per fit level.
+FIT_ITERATIONS = 5
+#: Scale sweep: weight of a pixel's squared colour difference against +1 for lying on the
+#: drawing (a brown brick is not where the picture is blue, however well it fits inside).
+SWEEP_COLOUR = 4.0
+#: Scale sweep: ratios to the previous scale (coarse), then finer around the best.
+SWEEP_RATIOS = tuple(float(r) for r in np.geomspace(0.25, 4.0, 13))
+
+
+def camera_dict(cam: _bg.Camera) -> dict[str, Any]:
+    """A camera as a manual step writes it (keys of :data:`mepnet.manual.page.CAMERA_KEYS`)."""
+    return {
+        "elevation": float(cam.elevation),
+        "azimuth": float(cam.azimuth),
+        "roll": float(cam.roll),
+        "scale": float(cam.scale),
+        "translation": [float(v) for v in cam.translation],
+    }
+
+
+@dataclass(frozen=True)
+class CameraEstimate:
+    """The camera a step was predicted with and where it came from."""
+
+    #: None when it could not be estimated.
+    camera: _bg.Camera | None
+    #: ``"given"`` (the manual states it) or ``"estimated"``.
+    source: str
+    #: How well the camera explains the picture: the share of the known shape's pixels whose
+    #: colour the picture shows where the camera puts them (None for a given camera).
+    fit: float | None = None
+    #: How it was found: ``given``, ``first step``, ``carried`` (the previous orientation),
+    #: ``turned`` (a quarter turn of it), ``searched`` (the whole view sphere).
+    how: str = "given"
+    #: Why there is no camera (the step's components fail with this reason).
+    failure: str | None = None
+    #: Wall time of the estimation (seconds), refits after prediction included.
+    seconds: float = 0.0
+    #: ``"convention"`` when fixed by the first step's convention (the base was empty), else
+    #: ``"base"`` (in the frame of the shape it was fitted to).
+    frame: str = "base"
+
+    @classmethod
+    def given(cls, step: Step) -> CameraEstimate:
+        """The camera the page states."""
+        return cls(step.camera_object(), "given")
+
+    def step_camera(self) -> dict[str, Any]:
+        """The camera as a page step's ``camera`` dict (for a copy of the step)."""
+        assert self.camera is not None
+        return camera_dict(self.camera)
+
+    def to_json(self) -> dict[str, Any]:
+        """``camera``, ``camera_source``, ``camera_fit`` (and ``camera_failure``) for plan.json."""
+        out: dict[str, Any] = {
+            "camera": None if self.camera is None else camera_dict(self.camera),
+            "camera_source": self.source,
+            "camera_fit": None if self.fit is None else round(float(self.fit), 4),
+        }
+        if self.source == "estimated":
+            out["camera_how"] = self.how
+        if self.failure is not None:
+            out["camera_failure"] = self.failure
+        return out
+
+
+def drop_cameras(manual: Any) -> Any:
+    """A copy of a manual whose steps state no camera (the answers are kept for scoring)."""
+
+    def build(b: Any) -> Any:
+        return dataclasses.replace(b, steps=[dataclasses.replace(s, camera=None) for s in b.steps])
+
+    return dataclasses.replace(
+        manual, main=build(manual.main), submodules=[build(b) for b in manual.submodules]
+    )
+
+
+@dataclass
+class _Picture:
+    """A step picture as the estimator uses it."""
+
+    rgb: np.ndarray  # (H, W, 3) uint8
+    fg: np.ndarray  # (H, W) bool: the drawing
+    small: np.ndarray  # (h, w) float32: the drawing reduced to WORK_PX a side (coverage)
+    small_rgb: np.ndarray  # (h, w, 3) float32 in [0, 1]: the picture reduced alike
+    fit: _bg.FitPicture  # the picture as the fit samples it (blurred copies kept)
+    _edges: tuple[float, float] | None = None
+
+    @property
+    def blank(self) -> bool:
+        return float(self.fg.mean()) < MIN_DRAWING
+
+    def edge_view(self) -> tuple[float, float]:
+        """The orientation its edges suggest: (elevation, azimuth in [180, 270))."""
+        if self._edges is None:
+            self._edges = edge_orientation(self.rgb)
+        return self._edges
+
+
+def _edge_grid() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Elevations, azimuths (the canonical quarter) and, per pair, the histogram bins of the
+    directions the lattice's x and z axes take in the picture (roll 0)."""
+    els = np.arange(EDGE_ELEVATIONS[0], EDGE_ELEVATIONS[1] + 1e-9, EDGE_STEP)
+    azs = np.arange(180.0, 270.0, EDGE_STEP)
+    e, a = np.meshgrid(np.radians(els), np.radians(azs), indexing="ij")
+    # projected axes (u right, v up): x -> (cos az, -sin az sin el), z -> (-sin az, -cos az sin el)
+    dir_x = np.degrees(np.arctan2(-np.sin(a) * np.sin(e), np.cos(a))) % 180.0
+    dir_z = np.degrees(np.arctan2(-np.cos(a) * np.sin(e), -np.sin(a))) % 180.0
+    to_bin = EDGE_BINS / 180.0
+    return (
+        els,
+        azs,
+        (dir_x * to_bin).astype(np.int64) % EDGE_BINS,
+        (dir_z * to_bin).astype(np.int64) % EDGE_BINS,
+    )
+
+
+_EDGE_GRID: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
+
+
+def edge_orientation(rgb: np.ndarray) -> tuple[float, float]:
+    """The camera orientation (elevation, azimuth in the canonical quarter [180, 270); roll 0)
+    under which the lattice's x and z axes run along the picture's strongest edge directions
+    (:func:`mepnet._brickgeom.edge_directions`): what the drawing's straight edges say about
+    the view, whatever the parts. Right within a degree or two for most pictures of bricks;
+    meaningless for round parts alone."""
+    global _EDGE_GRID
+    if _EDGE_GRID is None:
+        _EDGE_GRID = _edge_grid()
+    els, azs, bin_x, bin_z = _EDGE_GRID
+    hist = _bg.edge_directions(rgb, EDGE_BINS)
+    r = 6
+    kernel = np.exp(-0.5 * (np.arange(-r, r + 1) / 1.5) ** 2)
+    smooth = np.convolve(np.concatenate([hist[-r:], hist, hist[:r]]), kernel, mode="valid")
+    score = smooth[bin_x] + smooth[bin_z]
+    i, j = np.unravel_index(int(np.argmax(score)), score.shape)
+    return float(els[i]), float(azs[j])
+
+
+def _reduce(image: np.ndarray, side: int) -> np.ndarray:
+    """An image ((H, W) mask or (H, W, C)) reduced (area average) so its longer side is at
+    most ``side``, as float32 (edge cells padded with the border)."""
+    h, w = image.shape[:2]
+    f = max(1, math.ceil(max(h, w) / side))
+    hp, wp = math.ceil(h / f) * f, math.ceil(w / f) * f
+    if (hp, wp) != (h, w):
+        pad = [(0, hp - h), (0, wp - w)] + [(0, 0)] * (image.ndim - 2)
+        image = np.pad(image, pad, mode="edge")
+    sums = image.reshape(hp // f, f, wp // f, f, *image.shape[2:]).sum(axis=(1, 3), dtype=np.int32)
+    return sums.astype(np.float32) / (f * f)
+
+
+def _distinct(fits: list[tuple[float, _bg.Camera]], n: int) -> list[tuple[float, _bg.Camera]]:
+    """The best ``n`` hypotheses that differ by more than 15 degrees of azimuth or 7.5 of
+    elevation from every better one."""
+    out: list[tuple[float, _bg.Camera]] = []
+    for score, cam in sorted(fits, key=lambda f: -f[0]):
+        if all(
+            abs(_angle(cam.azimuth - c.azimuth)) > 15 or abs(cam.elevation - c.elevation) > 7.5
+            for _, c in out
+        ):
+            out.append((score, cam))
+            if len(out) == n:
+                break
+    return out
+
+
+def _angle(d: float) -> float:
+    """An angle difference in (-180, 180]."""
+    return -((-d + 180.0) % 360.0 - 180.0)
+
+
+def _front_distance(azimuth: float) -> float:
+    """Degrees from the nearest front three-quarter view."""
+    return min(abs(_angle(azimuth - a)) for a in FRONT_AZIMUTHS)
+
+
+def _with(cam: _bg.Camera, **kw: Any) -> _bg.Camera:
+    d = {
+        "elevation": cam.elevation,
+        "azimuth": cam.azimuth,
+        "roll": cam.roll,
+        "scale": cam.scale,
+        "translation": tuple(cam.translation),
+    }
+    d.update(kw)
+    return _bg.Camera(**d)
+
+
+def canonical(cam: _bg.Camera) -> _bg.Camera:
+    """The camera with its azimuth turned by quarter turns into [180, 270) (the world turned
+    with it about the vertical axis through the origin)."""
+    return _with(cam, azimuth=180.0 + float(cam.azimuth) % 90.0)
+
+
+def placements(asm: _bg.Assembly) -> list[tuple[_bg.Component, int, tuple[int, int, int], int]]:
+    """An assembly's placed components ``(component, yaw, t, colour)``."""
+    return [(c, int(y), tuple(int(v) for v in t), asm.colour(i)) for i, c, y, t in asm.instances()]  # type: ignore[misc]
+
+
+def moved_camera(cam: _bg.Camera, motion: Motion) -> _bg.Camera:
+    """The camera that sees the world moved by ``motion`` as ``cam`` saw it unmoved: for every
+    point p, it projects ``motion(p)`` where ``cam`` projected p."""
+    back = motion.inverse()
+    shift = np.asarray(back.shift, dtype=np.float64) * LDU_PER_CELL
+    offset = cam.scale * (np.asarray(cam.rotation()) @ shift)[:2]
+    return _with(
+        cam,
+        azimuth=float(cam.azimuth) - 90.0 * back.turn,
+        translation=(float(cam.translation[0] + offset[0]), float(cam.translation[1] + offset[1])),
+    )
+
+
+def frame_motion(shape: _bg.Assembly, base: _bg.Assembly) -> Motion | None:
+    """The rigid lattice motion that maps ``shape`` onto ``base`` exactly (every placed
+    component), if there is one: how the first step's convention frame sits in the frame of a
+    base handed over from elsewhere (the true shape, under teacher forcing)."""
+    mine, theirs = placements(shape), placements(base)
+    if not mine or len(mine) != len(theirs):
+        return None
+    motion, hits = best_motion(mine, theirs, candidate_motions(mine, theirs))
+    return motion if hits == len(theirs) else None
+
+
+class BuildCameras:
+    """The camera estimator of one build, called step after step by the plan loop
+    (:func:`mepnet.plan.run_build`): :meth:`hypotheses` before a step is predicted,
+    :meth:`check` after (how well the camera and the predicted shape explain the picture),
+    :meth:`accept` for the camera the step keeps (the next step's anchor). Keeps the pictures
+    it read last (a step's picture is the next step's anchor)."""
+
+    def __init__(self, image_size: tuple[int, int]):
+        self.image_size = image_size
+        self._pictures: dict[str, _Picture] = {}
+        #: the previous step, the camera it kept, whether a fit verified that camera with the
+        #: shape after the step (then it is the anchor as it stands), and that shape
+        self._previous: tuple[Step, CameraEstimate, bool, _bg.Assembly | None] | None = None
+
+    # -- pictures ------------------------------------------------------------------------------
+
+    def picture(self, step: Step) -> _Picture:
+        """The step's picture, foreground and reduced foreground (cached: the last three)."""
+        key = str(step.image_path)
+        pic = self._pictures.get(key)
+        if pic is None:
+            rgb = np.ascontiguousarray(step.image())
+            fg, _ = _bg.foreground_mask(rgb, FG_THRESHOLD, FG_MIN_AREA)
+            pic = _Picture(
+                rgb, fg, _reduce(fg, WORK_PX), _reduce(rgb, WORK_PX) / 255.0, _bg.FitPicture(rgb)
+            )
+            if len(self._pictures) >= 3:
+                self._pictures.pop(next(iter(self._pictures)))
+            self._pictures[key] = pic
+        return pic
+
+    # -- the plan loop's calls -----------------------------------------------------------------
+
+    def hypotheses(
+        self,
+        step: Step,
+        base: _bg.Assembly,
+        components: dict[ComponentRef, _bg.Component],
+        teacher_forced: bool,
+    ) -> Iterator[CameraEstimate]:
+        """Cameras for a step without one, most likely first, each made when it is asked for
+        (the plan loop stops at the first that explains the picture); a single failed estimate
+        when none fits. ``base``: the shape before the step."""
+        if len(base) == 0:
+            return iter([self._first(step, components)])
+        previous = None
+        same_frame = True
+        verified = False
+        if self._previous is not None:
+            prev_step, prev, verified, shape = self._previous
+            previous = (prev_step, prev)
+            if teacher_forced and prev.frame == "convention" and prev.camera is not None:
+                # the base is the true shape, the first step's camera in the convention's
+                # frame: carried over by the motion that maps the predicted first step onto
+                # the base (when it was predicted right; else searched)
+                motion = None if shape is None else frame_motion(shape, base)
+                if motion is None:
+                    same_frame = False
+                else:
+                    prev = dataclasses.replace(prev, camera=moved_camera(prev.camera, motion))
+                    previous = (prev_step, prev)
+        return self._next(step, base, components, previous, same_frame, verified and same_frame)
+
+    def check(self, step: Step, shape: _bg.Assembly, est: CameraEstimate) -> _bg.CameraFit | None:
+        """The camera fitted again (close, all six parameters) to the shape after the step (base
+        and predicted components), which the step's picture shows: how well both explain it
+        (``agree``, ``iou``), and the refined camera. None when nothing is placed."""
+        if est.camera is None or len(shape) == 0:
+            return None
+        return self._fit(shape, self.picture(step), est.camera, LEVELS_CHECK)
+
+    def accept(
+        self,
+        step: Step,
+        est: CameraEstimate,
+        fit: _bg.CameraFit | None,
+        shape: _bg.Assembly | None = None,
+    ) -> None:
+        """The camera the step was predicted with; ``fit``: its :meth:`check` (a good one
+        becomes the next step's anchor as it stands); ``shape``: the shape after the step as
+        predicted."""
+        if est.source == "given":
+            self._previous = (step, est, True, shape)
+        elif fit is not None and _full_ok(fit):
+            kept = dataclasses.replace(est, camera=fit.camera, fit=fit.agree)
+            self._previous = (step, kept, True, shape)
+        else:
+            self._previous = (step, est, False, shape)
+
+    # -- fits ----------------------------------------------------------------------------------
+
+    def _fit(
+        self,
+        shape: _bg.Assembly,
+        pic: _Picture,
+        init: _bg.Camera,
+        levels: tuple[int, ...],
+        free: tuple[bool, ...] = (True,) * 6,
+    ) -> _bg.CameraFit:
+        return _bg.fit_camera(
+            shape,
+            pic.fit,
+            pic.fg,
+            init,
+            free=free,
+            levels=list(levels),
+            iterations=FIT_ITERATIONS,
+            samples=FIT_SAMPLES,
+        )
+
+    def _search_full(
+        self, shape: _bg.Assembly, pic: _Picture, n: int = 3, views: list[_Picture] | None = None
+    ) -> _bg.CameraFit | None:
+        """The best fit of ``shape`` to a picture that shows exactly it, over the view sphere:
+        the orientations the edges of ``views`` (default: the picture) suggest, each quarter
+        turn, and a coarse grid, ranked by coarse silhouettes; the best ``n // 2`` of the former
+        and the best of the latter are fitted (``n`` in all). Among fits that agree equally well,
+        the one nearest a front three-quarter view wins."""
+        edge = [
+            (el, az + 90.0 * k, 0.0)
+            for el, az in {v.edge_view() for v in (views or [pic])}
+            for k in range(4)
+        ]
+        grid = [(e, a, 0.0) for e in SEARCH_ELEVATIONS for a in SEARCH_AZIMUTHS]
+        ranked = _distinct(_bg.search_orientations(shape, pic.fg, edge, WORK_PX), n // 2)
+        for score, cam in _bg.search_orientations(shape, pic.fg, grid, WORK_PX):
+            ranked.append((score - 1.0, cam))  # after the edges' candidates
+        ranked = _distinct(ranked, n)
+        fits = [self._fit(shape, pic, cam, LEVELS_ROUGH) for _, cam in ranked]
+        if not fits:
+            return None
+        return _prefer_front([(f, "") for f in fits], lambda f: f.agree)[0][0]
+
+    def _sweep(self, shape: _bg.Assembly, pic: _Picture, cam: _bg.Camera) -> list[_bg.Camera]:
+        """Scale and translation for ``cam``'s orientation that put the shape where the picture
+        shows it: the shape rendered once, resampled at scales around ``cam.scale`` (coarse,
+        then finer around the best), each placed by FFT cross-correlation with the reduced
+        picture, every pixel of the shape scoring +1 on the drawing, -2 off it, less
+        :data:`SWEEP_COLOUR` times its squared colour difference (so the shape is as large as the drawing allows, where its
+        colours are). The cameras of the three best distinct starts."""
+        target = pic.small
+        h, w = target.shape
+        n = 2 * WORK_PX
+        ref = _with(cam, scale=1.0, translation=(0.0, 0.0)).fitted(
+            np.asarray(bounds_corners(shape), dtype=np.float64), 0.9
+        )
+        render = _bg.render(shape, ref, n, n)
+        sil_ref = render.ids >= 0
+        rgb_ref = render.rgb.astype(np.float32) / 255.0
+        ndc_x = (np.arange(w) + 0.5) / w * 2 - 1
+        ndc_y = 1 - (np.arange(h) + 0.5) / h * 2
+        pad = (2 * h, 2 * w)
+        colours = pic.small_rgb
+        # per pixel of the shape at offset tau: W(x+tau) - sum_c (P_c(x+tau) - T_c(x))^2
+        weight = target - 2.0 * (1.0 - target) - SWEEP_COLOUR * (colours**2).sum(axis=2)
+        f_weight = np.fft.rfft2(weight, pad)
+        f_colour = [np.fft.rfft2(colours[..., c], pad) for c in range(3)]
+        rx, ry = ref.translation
+
+        def place(scale: float) -> list[tuple[float, _bg.Camera]]:
+            k = ref.scale / scale  # work NDC (translation 0) -> reference NDC
+            cols = np.floor((k * ndc_x + rx + 1) / 2 * n).astype(np.int64)
+            rows = np.floor((1 - (k * ndc_y + ry)) / 2 * n).astype(np.int64)
+            ok = np.outer((rows >= 0) & (rows < n), (cols >= 0) & (cols < n))
+            at = np.ix_(np.clip(rows, 0, n - 1), np.clip(cols, 0, n - 1))
+            sil = (sil_ref[at] & ok).astype(np.float32)
+            c = _with(cam, scale=scale, translation=(0.0, 0.0))
+            if not sil.any():
+                return []
+            tpl = rgb_ref[at] * sil[..., None]
+            spec = f_weight * np.conj(np.fft.rfft2(sil, pad))
+            for ch in range(3):
+                spec += 2.0 * SWEEP_COLOUR * f_colour[ch] * np.conj(np.fft.rfft2(tpl[..., ch], pad))
+            corr = np.fft.irfft2(spec, pad) - SWEEP_COLOUR * float((tpl**2).sum())
+            out = []
+            for _ in range(2):  # the two best offsets, apart
+                dy, dx = np.unravel_index(int(np.argmax(corr)), corr.shape)
+                score = float(corr[dy, dx])
+                corr[max(dy - 3, 0) : dy + 4, max(dx - 3, 0) : dx + 4] = -np.inf
+                dy = dy - pad[0] if dy >= h else dy
+                dx = dx - pad[1] if dx >= w else dx
+                out.append((score, _with(c, translation=(2.0 * dx / w, -2.0 * dy / h))))
+            return out
+
+        coarse = [x for r in SWEEP_RATIOS for x in place(cam.scale * r)]
+        if not coarse:
+            return [cam]
+        step = SWEEP_RATIOS[1] / SWEEP_RATIOS[0]
+        best = max(coarse, key=lambda s: s[0])[1]
+        fine = coarse + [
+            x for k in (-2 / 3, -1 / 3, 1 / 3, 2 / 3) for x in place(best.scale * step**k)
+        ]
+        fine.sort(key=lambda s: -s[0])
+        out: list[_bg.Camera] = []
+        for _, c in fine:
+            if all(_start_distance(c, o, w) > 2.0 for o in out):
+                out.append(c)
+            if len(out) == 3:
+                break
+        return out
+
+    def _fit_inside(self, shape: _bg.Assembly, pic: _Picture, start: _bg.Camera) -> _bg.CameraFit:
+        """Scale and translation of ``start``'s orientation fitted to a picture that shows
+        ``shape`` with new parts on it."""
+        return self._fit(
+            shape, pic, start, LEVELS_INSIDE, free=(False, False, False, True, True, True)
+        )
+
+    # -- the steps -----------------------------------------------------------------------------
+
+    def _first(self, step: Step, components: dict[ComponentRef, _bg.Component]) -> CameraEstimate:
+        """The camera of a build's first step (nothing built yet), by the frame convention (see
+        the module docs)."""
+        clock = _Clock()
+        pic = self.picture(step)
+        if pic.blank:
+            return _failed("the picture is blank", clock)
+        entries = [c for c in step.components if c.component in components]
+        if not entries:
+            return _failed("the step adds nothing mepnet can place", clock)
+        if len(entries) == 1 and entries[0].count == 1:
+            fit = self._search_full(_alone(components, entries[0]), pic, n=4)
+            if fit is None or not _full_ok(fit):
+                why = "the callout's component does not fit the picture"
+                return _failed(_why(why, fit), clock)
+            cam, fit_score = canonical(fit.camera), fit.agree
+        else:
+            # several components: the largest must lie inside the drawing; the plan loop then
+            # fits the camera to the whole predicted step and predicts again
+            largest = max(entries, key=lambda e: len(np.asarray(components[e.component].voxels)))
+            fits = [f for f in self._search_inside(_alone(components, largest), pic) if _part_ok(f)]
+            if fits:
+                best = max(fits, key=_part_score)
+                cam = canonical(best.camera)
+            else:
+                cam = self._prior_view(pic, entries, components)
+            fit_score = None
+        return CameraEstimate(
+            cam,
+            "estimated",
+            fit_score,
+            "first step",
+            seconds=clock.lap(),
+            frame="convention",
+        )
+
+    def _prior_view(
+        self, pic: _Picture, entries: list[Any], components: dict[ComponentRef, _bg.Component]
+    ) -> _bg.Camera:
+        """The convention's view framed to the drawing: its area over the components' projected
+        box areas gives the scale, its centroid the translation."""
+        unit = _bg.Camera(FIRST_ELEVATION, FIRST_AZIMUTH, 0.0, 1.0, (0.0, 0.0))
+        view = np.abs(unit.rotation()[2])
+        area = 0.0  # LDU^2
+        for e in entries:
+            vox = np.asarray(components[e.component].voxels)
+            size = (vox.max(axis=0) - vox.min(axis=0) + 1) * np.array([10.0, 8.0, 10.0])
+            a, b, c = size
+            area += e.count * (b * c * view[0] + a * c * view[1] + a * b * view[2])
+        h, w = pic.fg.shape
+        ndc_area = float(pic.fg.sum()) * (2.0 / w) * (2.0 / h)
+        scale = math.sqrt(ndc_area / max(area, 1e-6))
+        rows, cols = np.nonzero(pic.fg)
+        cx = float(((cols + 0.5) / w * 2 - 1).mean())
+        cy = float((1 - (rows + 0.5) / h * 2).mean())
+        return _with(unit, scale=scale, translation=(cx, cy))
+
+    def _next(
+        self,
+        step: Step,
+        base: _bg.Assembly,
+        components: dict[ComponentRef, _bg.Component],
+        previous: tuple[Step, CameraEstimate] | None,
+        same_frame: bool,
+        verified: bool,
+    ) -> Iterator[CameraEstimate]:
+        """Hypotheses for a step on a non-empty ``base``, most likely first, made as they are
+        asked for (see the module docs); a single failed estimate when none fits.
+        ``previous``: the previous step and the camera it kept; ``same_frame``: whether that
+        camera is in the frame of ``base``; ``verified``: whether it was fitted to ``base``."""
+        clock = _Clock()
+        pic = self.picture(step)
+        if pic.blank:
+            yield _failed("the picture is blank", clock)
+            return
+        anchor: _bg.Camera | None = None
+        if previous is not None and previous[1].camera is not None:
+            prev_step, prev = previous
+            prev_pic = self.picture(prev_step)
+            anchor_fit: float | None = None
+            if verified:
+                anchor, anchor_fit = prev.camera, prev.fit
+            elif not prev_pic.blank:
+                if same_frame:
+                    fit = self._fit(base, prev_pic, prev.camera, LEVELS_CLOSE)  # type: ignore[arg-type]
+                    if _full_ok(fit):
+                        anchor, anchor_fit = fit.camera, fit.agree
+                if anchor is None:
+                    found = self._search_full(base, prev_pic, views=[prev_pic, pic])
+                    if found is not None and _full_ok(found):
+                        anchor, anchor_fit = found.camera, found.agree
+            if anchor is None and same_frame:
+                anchor = prev.camera  # the base may be wrong (built on mistakes)
+            elif anchor is not None and not prev_pic.blank and len(base) <= SMALL_BASE:
+                anchor = self._edge_check(base, prev_pic, pic, anchor, anchor_fit)
+        yielded: list[_bg.Camera] = []
+
+        def offer(fits: list[tuple[_bg.CameraFit, str]], ok: Any) -> Iterator[CameraEstimate]:
+            for f, how in fits:
+                if ok(f) and all(_camera_distance(f.camera, c, pic) > 1.0 for c in yielded):
+                    yielded.append(f.camera)
+                    yield CameraEstimate(f.camera, "estimated", f.agree, how, seconds=clock.lap())
+
+        first: list[tuple[_bg.CameraFit, str]] = []
+        starts: list[_bg.Camera] = []
+        if anchor is not None:
+            starts = self._sweep(base, pic, anchor)
+            first = [(self._fit_inside(base, pic, starts[0]), "carried")]
+            yield from offer(first, _part_ok)
+        # the base may be mostly hidden by the new part, or say little about the view: camera
+        # and placement together
+        yield from offer(self._joint(step, base, components, pic, anchor), _full_ok)
+        more = list(first)
+        if anchor is not None:
+            # the base may be turned round: other starts and quarter turns
+            more += [(self._fit_inside(base, pic, c), "carried") for c in starts[1:]]
+            for k in (1, 2, 3):
+                turned = _with(anchor, azimuth=anchor.azimuth + 90.0 * k)
+                start = self._sweep(base, pic, turned)[0]
+                more.append((self._fit_inside(base, pic, start), "turned"))
+        more.sort(key=lambda fh: -_part_score(fh[0]))
+        yield from offer(more, _part_ok)
+        if not yielded:
+            more += [(f, "searched") for f in self._search_inside(base, pic)]
+            more.sort(key=lambda fh: -_part_score(fh[0]))
+            yield from offer(more, _part_ok)
+        # a base hidden by new parts agrees little: what lies inside the drawing
+        yield from offer(more, lambda f: f.inside >= PART_INSIDE and f.agree >= MIN_AGREE)
+        if not yielded:
+            best = more[0][0] if more else None
+            yield _failed(_why("the shape built so far does not fit the picture", best), clock)
+
+    def _joint(
+        self,
+        step: Step,
+        base: _bg.Assembly,
+        components: dict[ComponentRef, _bg.Component],
+        pic: _Picture,
+        anchor: _bg.Camera | None,
+    ) -> list[tuple[_bg.CameraFit, str]]:
+        """For a step that adds one component to a base the picture says little about (small,
+        round, hidden behind the new part): camera and placement together. Every valid
+        placement of the component on the base, seen from the anchor's orientation and the
+        edges' (each quarter turn), is framed to the drawing as a coarse silhouette; the best
+        few wholes are fitted to the picture, which shows exactly them. Fits that explain it
+        well, best first."""
+        entries = [c for c in step.components if c.component in components]
+        if len(entries) != 1 or entries[0].count != 1:
+            return []
+        entry = entries[0]
+        comp = components[entry.component]
+        el, az = pic.edge_view()
+        orients = {(el, az + 90.0 * k, 0.0) for k in range(4)}
+        if anchor is not None:
+            orients.add((float(anchor.elevation), float(anchor.azimuth), float(anchor.roll)))
+        ranked = _bg.search_placements(base, comp, pic.fg, sorted(orients), WORK_PX, JOINT_STARTS)
+        fits = []
+        for _, yaw, t, cam in ranked:
+            whole = base.copy()
+            whole.add(comp, yaw, t, entry.colour)
+            fit = self._fit(whole, pic, cam, LEVELS_ROUGH)
+            if _full_ok(fit):
+                fits.append((fit, "joint"))
+        return _prefer_front(fits, lambda f: f.agree + f.iou)
+
+    def _edge_check(
+        self,
+        base: _bg.Assembly,
+        prev_pic: _Picture,
+        pic: _Picture,
+        anchor: _bg.Camera,
+        anchor_fit: float | None,
+    ) -> _bg.Camera:
+        """The anchor, or the orientation this picture's edges suggest when they disagree with
+        it and the base cannot tell the two apart (a round or tiny base says little about the
+        azimuth; the new parts' edges do): the base fitted in the previous picture with the
+        edges' orientation (turned to the anchor's quarter) explains it as well."""
+        el, az = pic.edge_view()
+        turn = round((float(anchor.azimuth) - az) / 90.0)
+        az += 90.0 * turn
+        if (
+            abs(el - anchor.elevation) <= ORIENTATION_TOL
+            and abs(_angle(az - anchor.azimuth)) <= ORIENTATION_TOL
+        ):
+            return anchor
+        start = _with(anchor, elevation=el, azimuth=az, roll=0.0)
+        fit = self._fit(
+            base, prev_pic, start, LEVELS_CLOSE, free=(False, False, False, True, True, True)
+        )
+        if anchor_fit is None:
+            anchor_fit = self._fit(base, prev_pic, anchor, (0,), free=(False,) * 6).agree
+        return fit.camera if fit.agree >= anchor_fit - 0.01 else anchor
+
+    def _search_inside(self, base: _bg.Assembly, pic: _Picture) -> list[_bg.CameraFit]:
+        """Fits of the base to a picture showing it with new parts, over the view sphere:
+        orientations ranked by the coarse full-silhouette score, the best few swept and
+        fitted."""
+        el, az = pic.edge_view()
+        views = [_bg.Camera(el, az + 90.0 * k, 0.0, 1.0, (0.0, 0.0)) for k in range(4)]
+        cands = [(e, a, 0.0) for e in SEARCH_ELEVATIONS for a in SEARCH_AZIMUTHS]
+        ranked = _distinct(_bg.search_orientations(base, pic.fg, cands, WORK_PX), 2)
+        starts = views + [cam for _, cam in ranked]
+        return [self._fit_inside(base, pic, self._sweep(base, pic, cam)[0]) for cam in starts]
+
+
+def _alone(components: dict[ComponentRef, _bg.Component], entry: Any) -> _bg.Assembly:
+    """A callout entry's component alone, standing on the ground at the origin."""
+    comp = components[entry.component]
+    shape = _bg.Assembly()
+    shape.add(comp, 0, (0, -int(np.asarray(comp.voxels)[:, 1].min()), 0), entry.colour)
+    return shape
+
+
+def _start_distance(a: _bg.Camera, b: _bg.Camera, side: int) -> float:
+    """How far apart two starts of the same orientation put the shape, roughly, in pixels of
+    a ``side``-pixel picture (translation, and scale as a share of a half frame)."""
+    dt = math.hypot(a.translation[0] - b.translation[0], a.translation[1] - b.translation[1])
+    return side / 2 * (dt + abs(math.log(a.scale / b.scale)))
+
+
+def _prefer_front(
+    fits: list[tuple[_bg.CameraFit, str]], score: Any
+) -> list[tuple[_bg.CameraFit, str]]:
+    """Fits best first by ``score``; among those within :data:`TIE` of the best, the one
+    nearest a front three-quarter view first (a symmetric or hidden base explains the picture
+    as well from the back: the views instruction tools use decide)."""
+    fits = sorted(fits, key=lambda fh: -score(fh[0]))
+    if len(fits) < 2:
+        return fits
+    top = score(fits[0][0])
+    close = [fh for fh in fits if score(fh[0]) >= top - TIE]
+    first = min(close, key=lambda fh: _front_distance(fh[0].camera.azimuth))
+    return [first] + [fh for fh in fits if fh is not first]
+
+
+def _confident(fit: _bg.CameraFit) -> bool:
+    """A fit of the base so good that no other hypothesis is worth trying."""
+    return fit.inside >= CONFIDENT_INSIDE and fit.agree >= CONFIDENT_AGREE
+
+
+def _full_ok(fit: _bg.CameraFit | None) -> bool:
+    return fit is not None and fit.agree >= FULL_AGREE and fit.iou >= FULL_IOU
+
+
+def _part_ok(fit: _bg.CameraFit | None) -> bool:
+    return fit is not None and fit.inside >= PART_INSIDE and fit.agree >= PART_AGREE
+
+
+def _part_score(fit: _bg.CameraFit) -> float:
+    """How well a fit of the base explains a picture of the base with new parts."""
+    return min(fit.inside / PART_INSIDE, 1.0) + fit.agree
+
+
+def _why(what: str, fit: _bg.CameraFit | None) -> str:
+    if fit is None:
+        return what
+    return (
+        f"{what} (best fit: {100 * fit.agree:.0f}% of its pixels agree, "
+        f"{100 * fit.inside:.0f}% of its silhouette on the drawing)"
+    )
+
+
+class _Clock:
+    """Seconds since the last lap."""
+
+    def __init__(self) -> None:
+        self.t = time.perf_counter()
+
+    def lap(self) -> float:
+        now = time.perf_counter()
+        out, self.t = now - self.t, now
+        return out
+
+
+def _failed(why: str, clock: _Clock) -> CameraEstimate:
+    return CameraEstimate(
+        None,
+        "estimated",
+        None,
+        "failed",
+        failure=f"camera could not be estimated: {why}",
+        seconds=clock.lap(),
+    )
+
+
+def _camera_distance(a: _bg.Camera, b: _bg.Camera, pic: _Picture) -> float:
+    """Mean pixel distance between where two cameras put the corners of a 200 LDU cube at the
+    origin, in ``pic``'s pixels (a rough sameness test)."""
+    corners = np.array(list(np.ndindex(2, 2, 2)), dtype=np.float64) * 200.0 - 100.0
+    h, w = pic.fg.shape
+    pa, _ = a.project(corners, w, h)
+    pb, _ = b.project(corners, w, h)
+    return float(np.linalg.norm(pa - pb, axis=1).mean())
+
+
+def rotation_error(a: _bg.Camera, b: _bg.Camera) -> float:
+    """The angle (degrees) of the rotation between two cameras' orientations."""
+    r = np.asarray(a.rotation()) @ np.asarray(b.rotation()).T
+    return math.degrees(math.acos(max(-1.0, min(1.0, (float(np.trace(r)) - 1.0) / 2.0))))
+
+
+def reprojection_error(
+    a: _bg.Camera, b: _bg.Camera, points: np.ndarray, size: tuple[int, int]
+) -> float:
+    """Mean pixel distance between the projections of world ``points`` (N, 3) by two cameras."""
+    w, h = size
+    pa, _ = a.project(points, w, h)
+    pb, _ = b.project(points, w, h)
+    return float(np.linalg.norm(pa - pb, axis=1).mean())
