@@ -43,7 +43,7 @@ from typing import Any
 import numpy as np
 
 from mepnet import _brickgeom as _bg
-from mepnet.frames import Motion, best_motion, candidate_motions
+from mepnet.frames import Motion, candidate_motions, matches
 from mepnet.geom import LDU_PER_CELL, bounds_corners
 from mepnet.manual import ComponentRef, Step
 
@@ -89,6 +89,9 @@ FULL_AGREE, FULL_IOU = 0.6, 0.5
 #: A fit to a picture that shows the shape with new parts on it is good when this share of
 #: the shape's silhouette lies on the drawing and this share of its pixels agree.
 PART_INSIDE, PART_AGREE = 0.93, 0.45
+#: The last picture with a camera, found again in this one, carries its camera over when this
+#: share of it lies on the drawing in the same colours.
+REGISTER_AGREE = 0.15
 #: Below this agreement a fit is no hypothesis at all (a base mostly hidden still shows this).
 MIN_AGREE = 0.15
 #: A fit of the base this good leaves no doubt (no other hypotheses are tried).
@@ -97,7 +100,7 @@ CONFIDENT_INSIDE, CONFIDENT_AGREE = 0.97, 0.8
 #: checked against the picture's edges.
 SMALL_BASE = 2
 #: Fits whose scores differ by less than this are ties (broken by the front-view prior).
-TIE = 0.02
+TIE = 0.05
 #: Placements of a step's one component fitted with the base when the base alone is unsure.
 JOINT_STARTS = 3
 #: Pixels of the known shape (and of the page around it) a fit samples at most.
@@ -131,10 +134,13 @@ class CameraEstimate:
     #: ``"given"`` (the manual states it) or ``"estimated"``.
     source: str
     #: How well the camera explains the picture: the share of the known shape's pixels whose
-    #: colour the picture shows where the camera puts them (None for a given camera).
+    #: colour the picture shows where the camera puts them (None for a given camera, and for a
+    #: first step's prior view until the plan loop fitted it to the predicted step).
     fit: float | None = None
     #: How it was found: ``given``, ``first step``, ``carried`` (the previous orientation),
-    #: ``turned`` (a quarter turn of it), ``searched`` (the whole view sphere).
+    #: ``turned`` (a quarter turn of it), ``joint`` (with the placement of the step's one
+    #: component), ``searched`` (the whole view sphere), ``registered`` (the last picture with a
+    #: camera found again in this one: the shape built so far does not fit).
     how: str = "given"
     #: Why there is no camera (the step's components fail with this reason).
     failure: str | None = None
@@ -315,15 +321,14 @@ def moved_camera(cam: _bg.Camera, motion: Motion) -> _bg.Camera:
     )
 
 
-def frame_motion(shape: _bg.Assembly, base: _bg.Assembly) -> Motion | None:
-    """The rigid lattice motion that maps ``shape`` onto ``base`` exactly (every placed
-    component), if there is one: how the first step's convention frame sits in the frame of a
-    base handed over from elsewhere (the true shape, under teacher forcing)."""
+def frame_motions(shape: _bg.Assembly, base: _bg.Assembly) -> list[Motion]:
+    """The rigid lattice motions that map ``shape`` onto ``base`` exactly (every placed
+    component; several when the base is symmetric): how the first step's convention frame sits
+    in the frame of a base handed over from elsewhere (the true shape, under teacher forcing)."""
     mine, theirs = placements(shape), placements(base)
     if not mine or len(mine) != len(theirs):
-        return None
-    motion, hits = best_motion(mine, theirs, candidate_motions(mine, theirs))
-    return motion if hits == len(theirs) else None
+        return []
+    return [m for m in candidate_motions(mine, theirs) if matches(mine, theirs, m) == len(theirs)]
 
 
 class BuildCameras:
@@ -339,6 +344,8 @@ class BuildCameras:
         #: the previous step, the camera it kept, whether a fit verified that camera with the
         #: shape after the step (then it is the anchor as it stands), and that shape
         self._previous: tuple[Step, CameraEstimate, bool, _bg.Assembly | None] | None = None
+        #: the latest step that kept a camera, and that camera
+        self._last_good: tuple[Step, _bg.Camera] | None = None
 
     # -- pictures ------------------------------------------------------------------------------
 
@@ -381,11 +388,16 @@ class BuildCameras:
                 # the base is the true shape, the first step's camera in the convention's
                 # frame: carried over by the motion that maps the predicted first step onto
                 # the base (when it was predicted right; else searched)
-                motion = None if shape is None else frame_motion(shape, base)
-                if motion is None:
+                moved = (
+                    [moved_camera(prev.camera, m) for m in frame_motions(shape, base)]
+                    if shape
+                    else []
+                )
+                if not moved:
                     same_frame = False
-                else:
-                    prev = dataclasses.replace(prev, camera=moved_camera(prev.camera, motion))
+                else:  # a symmetric base: the view instruction tools use
+                    cam = min(moved, key=lambda c: _front_distance(c.azimuth))
+                    prev = dataclasses.replace(prev, camera=cam)
                     previous = (prev_step, prev)
         return self._next(step, base, components, previous, same_frame, verified and same_frame)
 
@@ -414,6 +426,8 @@ class BuildCameras:
             self._previous = (step, kept, True, shape)
         else:
             self._previous = (step, est, False, shape)
+        if self._previous[1].camera is not None:
+            self._last_good = (step, self._previous[1].camera)
 
     # -- fits ----------------------------------------------------------------------------------
 
@@ -461,41 +475,92 @@ class BuildCameras:
 
     def _sweep(self, shape: _bg.Assembly, pic: _Picture, cam: _bg.Camera) -> list[_bg.Camera]:
         """Scale and translation for ``cam``'s orientation that put the shape where the picture
-        shows it: the shape rendered once, resampled at scales around ``cam.scale`` (coarse,
-        then finer around the best), each placed by FFT cross-correlation with the reduced
-        picture, every pixel of the shape scoring +1 on the drawing, -2 off it, less
-        :data:`SWEEP_COLOUR` times its squared colour difference (so the shape is as large as the drawing allows, where its
-        colours are). The cameras of the three best distinct starts."""
-        target = pic.small
-        h, w = target.shape
+        shows it (:meth:`_match` of the shape rendered once). The cameras of the three best
+        distinct starts."""
         n = 2 * WORK_PX
         ref = _with(cam, scale=1.0, translation=(0.0, 0.0)).fitted(
             np.asarray(bounds_corners(shape), dtype=np.float64), 0.9
         )
         render = _bg.render(shape, ref, n, n)
-        sil_ref = render.ids >= 0
-        rgb_ref = render.rgb.astype(np.float32) / 255.0
+        rgb = render.rgb.astype(np.float32) / 255.0
+        return [c for _, c in self._match(render.ids >= 0, rgb, ref, pic)]
+
+    def _register(
+        self, prev_pic: _Picture, prev_cam: _bg.Camera, pic: _Picture
+    ) -> tuple[float, _bg.Camera] | None:
+        """The previous picture's drawing found again in this one (zoom and pan, whatever the
+        shapes built): the camera carried over, and the share of that drawing's pixels (at the
+        match) that lie on this drawing in the same colour. None when nothing matches."""
+        ref_rgb = prev_pic.rgb.astype(np.float32) / 255.0
+        found = self._match(prev_pic.fg, ref_rgb, prev_cam, pic, starts=1)
+        if not found:
+            return None
+        cam = found[0][1]
+        sil, tpl = self._resampled(prev_pic.fg, ref_rgb, prev_cam, cam, pic.small.shape)
+        tx, ty = cam.translation  # the match's offset, in pixels of the reduced picture
+        h, w = pic.small.shape
+        shift = (round(-ty * h / 2.0), round(tx * w / 2.0))
+        moved_sil = np.roll(sil, shift, axis=(0, 1))
+        moved_tpl = np.roll(tpl, shift, axis=(0, 1))
+        on = moved_sil > 0
+        if not on.any():
+            return None
+        same = np.abs(pic.small_rgb - moved_tpl).max(axis=2) < 0.15
+        agree = float((same & (pic.small > 0.5))[on].mean())
+        return agree, cam
+
+    @staticmethod
+    def _resampled(
+        sil_ref: np.ndarray,
+        rgb_ref: np.ndarray,
+        ref: _bg.Camera,
+        cam: _bg.Camera,
+        shape: tuple[int, int],
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """A reference silhouette and colours (seen by camera ``ref``) as camera ``cam`` (same
+        orientation, translation ignored) sees them, on a grid of ``shape`` (nearest)."""
+        h, w = shape
+        ny, nx = sil_ref.shape
+        k = ref.scale / cam.scale  # work NDC (translation 0) -> reference NDC
+        rx, ry = ref.translation
         ndc_x = (np.arange(w) + 0.5) / w * 2 - 1
         ndc_y = 1 - (np.arange(h) + 0.5) / h * 2
+        cols = np.floor((k * ndc_x + rx + 1) / 2 * nx).astype(np.int64)
+        rows = np.floor((1 - (k * ndc_y + ry)) / 2 * ny).astype(np.int64)
+        ok = np.outer((rows >= 0) & (rows < ny), (cols >= 0) & (cols < nx))
+        at = np.ix_(np.clip(rows, 0, ny - 1), np.clip(cols, 0, nx - 1))
+        sil = (sil_ref[at] & ok).astype(np.float32)
+        return sil, rgb_ref[at] * sil[..., None]
+
+    def _match(
+        self,
+        sil_ref: np.ndarray,
+        rgb_ref: np.ndarray,
+        ref: _bg.Camera,
+        pic: _Picture,
+        starts: int = 3,
+    ) -> list[tuple[float, _bg.Camera]]:
+        """Scale and translation, for the orientation of ``ref``, that put a reference (a
+        silhouette and its colours as camera ``ref`` sees them) where the picture shows it: the
+        reference resampled at scales around ``ref.scale`` (coarse, then finer around the best),
+        each placed by FFT cross-correlation with the reduced picture, every pixel of the
+        reference scoring +1 on the drawing, -2 off it, less :data:`SWEEP_COLOUR` times its
+        squared colour difference (so the reference is as large as the drawing allows, where
+        its colours are). The best ``starts`` distinct placements, best first."""
+        target = pic.small
+        h, w = target.shape
         pad = (2 * h, 2 * w)
         colours = pic.small_rgb
-        # per pixel of the shape at offset tau: W(x+tau) - sum_c (P_c(x+tau) - T_c(x))^2
+        # per pixel of the reference at offset tau: W(x+tau) - sum_c (P_c(x+tau) - T_c(x))^2
         weight = target - 2.0 * (1.0 - target) - SWEEP_COLOUR * (colours**2).sum(axis=2)
         f_weight = np.fft.rfft2(weight, pad)
         f_colour = [np.fft.rfft2(colours[..., c], pad) for c in range(3)]
-        rx, ry = ref.translation
 
         def place(scale: float) -> list[tuple[float, _bg.Camera]]:
-            k = ref.scale / scale  # work NDC (translation 0) -> reference NDC
-            cols = np.floor((k * ndc_x + rx + 1) / 2 * n).astype(np.int64)
-            rows = np.floor((1 - (k * ndc_y + ry)) / 2 * n).astype(np.int64)
-            ok = np.outer((rows >= 0) & (rows < n), (cols >= 0) & (cols < n))
-            at = np.ix_(np.clip(rows, 0, n - 1), np.clip(cols, 0, n - 1))
-            sil = (sil_ref[at] & ok).astype(np.float32)
-            c = _with(cam, scale=scale, translation=(0.0, 0.0))
+            c = _with(ref, scale=scale, translation=(0.0, 0.0))
+            sil, tpl = self._resampled(sil_ref, rgb_ref, ref, c, (h, w))
             if not sil.any():
                 return []
-            tpl = rgb_ref[at] * sil[..., None]
             spec = f_weight * np.conj(np.fft.rfft2(sil, pad))
             for ch in range(3):
                 spec += 2.0 * SWEEP_COLOUR * f_colour[ch] * np.conj(np.fft.rfft2(tpl[..., ch], pad))
@@ -510,20 +575,21 @@ class BuildCameras:
                 out.append((score, _with(c, translation=(2.0 * dx / w, -2.0 * dy / h))))
             return out
 
+        cam = ref
         coarse = [x for r in SWEEP_RATIOS for x in place(cam.scale * r)]
         if not coarse:
-            return [cam]
+            return []
         step = SWEEP_RATIOS[1] / SWEEP_RATIOS[0]
         best = max(coarse, key=lambda s: s[0])[1]
         fine = coarse + [
             x for k in (-2 / 3, -1 / 3, 1 / 3, 2 / 3) for x in place(best.scale * step**k)
         ]
         fine.sort(key=lambda s: -s[0])
-        out: list[_bg.Camera] = []
-        for _, c in fine:
-            if all(_start_distance(c, o, w) > 2.0 for o in out):
-                out.append(c)
-            if len(out) == 3:
+        out: list[tuple[float, _bg.Camera]] = []
+        for score, c in fine:
+            if all(_start_distance(c, o, w) > 2.0 for _, o in out):
+                out.append((score, c))
+            if len(out) == starts:
                 break
         return out
 
@@ -548,10 +614,10 @@ class BuildCameras:
             return _failed("the step adds nothing mepnet can place", clock)
         if len(entries) == 1 and entries[0].count == 1:
             fit = self._search_full(_alone(components, entries[0]), pic, n=4)
-            if fit is None or not _full_ok(fit):
-                why = "the callout's component does not fit the picture"
-                return _failed(_why(why, fit), clock)
-            cam, fit_score = canonical(fit.camera), fit.agree
+            if fit is not None and _full_ok(fit):
+                cam, fit_score = canonical(fit.camera), fit.agree
+            else:  # the plan loop fits it to the predicted step, and judges
+                cam, fit_score = self._prior_view(pic, entries, components), None
         else:
             # several components: the largest must lie inside the drawing; the plan loop then
             # fits the camera to the whole predicted step and predicts again
@@ -643,7 +709,7 @@ class BuildCameras:
         starts: list[_bg.Camera] = []
         if anchor is not None:
             starts = self._sweep(base, pic, anchor)
-            first = [(self._fit_inside(base, pic, starts[0]), "carried")]
+            first = [(self._fit_inside(base, pic, c), "carried") for c in starts[:1]]
             yield from offer(first, _part_ok)
         # the base may be mostly hidden by the new part, or say little about the view: camera
         # and placement together
@@ -654,8 +720,8 @@ class BuildCameras:
             more += [(self._fit_inside(base, pic, c), "carried") for c in starts[1:]]
             for k in (1, 2, 3):
                 turned = _with(anchor, azimuth=anchor.azimuth + 90.0 * k)
-                start = self._sweep(base, pic, turned)[0]
-                more.append((self._fit_inside(base, pic, start), "turned"))
+                for start in self._sweep(base, pic, turned)[:1]:
+                    more.append((self._fit_inside(base, pic, start), "turned"))
         more.sort(key=lambda fh: -_part_score(fh[0]))
         yield from offer(more, _part_ok)
         if not yielded:
@@ -664,6 +730,14 @@ class BuildCameras:
             yield from offer(more, _part_ok)
         # a base hidden by new parts agrees little: what lies inside the drawing
         yield from offer(more, lambda f: f.inside >= PART_INSIDE and f.agree >= MIN_AGREE)
+        if not yielded and self._last_good is not None:
+            # the shape built so far is wrong (built on mistakes) or hidden: the last picture
+            # with a camera found again in this one, zoomed and panned
+            last_step, last_cam = self._last_good
+            reg = self._register(self.picture(last_step), last_cam, pic)
+            if reg is not None and reg[0] >= REGISTER_AGREE:
+                yielded.append(reg[1])
+                yield CameraEstimate(reg[1], "estimated", reg[0], "registered", seconds=clock.lap())
         if not yielded:
             best = more[0][0] if more else None
             yield _failed(_why("the shape built so far does not fit the picture", best), clock)
@@ -738,7 +812,11 @@ class BuildCameras:
         cands = [(e, a, 0.0) for e in SEARCH_ELEVATIONS for a in SEARCH_AZIMUTHS]
         ranked = _distinct(_bg.search_orientations(base, pic.fg, cands, WORK_PX), 2)
         starts = views + [cam for _, cam in ranked]
-        return [self._fit_inside(base, pic, self._sweep(base, pic, cam)[0]) for cam in starts]
+        return [
+            self._fit_inside(base, pic, start)
+            for cam in starts
+            for start in self._sweep(base, pic, cam)[:1]
+        ]
 
 
 def _alone(components: dict[ComponentRef, _bg.Component], entry: Any) -> _bg.Assembly:

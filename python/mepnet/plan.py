@@ -194,6 +194,11 @@ def run_build(
 
 #: A camera check this good ends the search over a step's camera hypotheses.
 EXPLAINED_IOU, EXPLAINED_AGREE = 0.9, 0.8
+#: A turned or searched view's check must beat a carried one's by this much.
+UNLIKELY = 0.1
+#: A first step's prior view whose check (fitted to the predicted step) agrees or overlaps less
+#: than this explains nothing: the step fails.
+POOR = 0.5
 #: Camera hypotheses predicted with at most, per step.
 MAX_HYPOTHESES = 4
 #: A first step is predicted again when fitting the camera to its predicted shape moved it
@@ -235,7 +240,7 @@ def _estimated_camera_step(
     cannot be estimated fails every component of the step with the reason."""
     seconds = 0.0
     spent = 0.0  # camera estimation: every hypothesis made and checked
-    best: tuple[float, list[Prediction], CameraEstimate, Any, _bg.Assembly] | None = None
+    best: tuple[float, list[Prediction], CameraEstimate, Any, _bg.Assembly, bool] | None = None
     for tried, est in enumerate(cameras.hypotheses(page_step, base, components, teacher_forced)):
         spent += est.seconds
         if est.failure is not None or tried == MAX_HYPOTHESES:
@@ -249,6 +254,7 @@ def _estimated_camera_step(
                 ]
                 return preds, seconds, est
             break
+        unverified = est.fit is None  # a first step's prior view: judged by its check
         for again in (False, True):
             preds, s = predict(dataclasses.replace(page_step, camera=est.step_camera()))
             seconds += s
@@ -261,13 +267,29 @@ def _estimated_camera_step(
                 break
             est = dataclasses.replace(est, camera=fit.camera, fit=fit.agree)
         score = -1.0 if fit is None else fit.iou + fit.agree
+        if est.how in ("turned", "searched"):
+            score -= UNLIKELY  # a turned or searched view needs clearly better evidence
         if best is None or score > best[0]:
-            best = (score, preds, est, fit, shape)
+            best = (score, preds, est, fit, shape, unverified)
         if fit is not None and fit.iou >= EXPLAINED_IOU and fit.agree >= EXPLAINED_AGREE:
             break
     assert best is not None
-    _, preds, est, fit, shape = best
+    _, preds, est, fit, shape, unverified = best
     est = dataclasses.replace(est, seconds=spent)
+    if unverified and (fit is None or fit.iou < POOR or fit.agree < POOR):
+        # nothing the callout shows explains the picture
+        why = "the predicted step does not explain the picture" + (
+            "" if fit is None else f" ({100 * fit.agree:.0f}% of its pixels agree)"
+        )
+        est = dataclasses.replace(
+            est, camera=None, failure=f"camera could not be estimated: {why}", how="failed"
+        )
+        preds = [
+            Prediction(e, c.component, None, None, failure=est.failure)
+            for e, c in enumerate(page_step.components)
+            for _ in range(c.count)
+        ]
+        fit = None
     cameras.accept(page_step, est, fit, shape)
     return preds, seconds, est
 

@@ -1,0 +1,289 @@
+"""Cameras estimated from the pictures (mepnet.cameras), the frame comparison (mepnet.frames),
+the camfit binding, and the commands on manuals without cameras."""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import generate_manuals
+from mepnet import _brickgeom as _bg
+from mepnet.cameras import BuildCameras, drop_cameras, moved_camera
+from mepnet.eval import _camera_errors
+from mepnet.frames import Motion, candidate_motions, matches, moved, symmetries
+from mepnet.geom import rotate_ldu
+from mepnet.manual import load_manual
+from mepnet.plan import accuracy, run_manual
+from mepnet.stage2 import make_predictor
+from PIL import Image
+
+
+@pytest.fixture(scope="module")
+def manuals(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    # two small manuals (6 and 9 steps, one submodule): the tests run stage 2 by synthesis
+    return generate_manuals(tmp_path_factory.mktemp("camdata"), 2, 31016)
+
+
+@pytest.fixture(scope="module")
+def runs(manuals: Path) -> list[tuple[object, object, object]]:
+    """(manual, teacher-forced run with the manual's cameras, with estimated ones) per manual,
+    stage 2 by synthesis (the oracles read the true yaw, which the first step's frame
+    convention does not keep)."""
+    synthesis = make_predictor("synthesis")
+    out = []
+    for d in sorted(manuals.iterdir()):
+        man = load_manual(d)
+        given = run_manual(man, synthesis, teacher_forced=True)
+        estimated = run_manual(drop_cameras(man), synthesis, teacher_forced=True)
+        out.append((man, given, estimated))
+    return out
+
+
+def errors(runs: list[tuple[object, object, object]], first: bool) -> list[tuple[float, float]]:
+    out = []
+    for man, _, run in runs:
+        for b in run.builds:  # type: ignore[attr-defined]
+            for s in b.steps:
+                if (s.index == 1) == first:
+                    e = _camera_errors(man, run, b, s)
+                    if e is not None:
+                        out.append(e)
+    return out
+
+
+def test_later_steps_recover_the_true_camera(runs: list[tuple[object, object, object]]):
+    errs = np.array(errors(runs, first=False))
+    assert len(errs) >= 10
+    # rotation within a degree or two, reprojection of the true shape within a pixel or two
+    assert np.median(errs[:, 0]) < 1.0 and np.median(errs[:, 1]) < 0.5, np.median(errs, axis=0)
+    assert (errs[:, 1] < 2.0).mean() >= 0.8, errs
+
+
+def test_first_steps_recover_the_camera_up_to_the_frame(runs: list[tuple[object, object, object]]):
+    errs = np.array(errors(runs, first=True))
+    assert len(errs) == 3
+    assert np.median(errs[:, 0]) < 2.0 and np.median(errs[:, 1]) < 2.0, errs
+
+
+def test_every_estimated_step_records_its_camera(runs: list[tuple[object, object, object]]):
+    for _, given, run in runs:
+        for b in run.builds:  # type: ignore[attr-defined]
+            for s in b.steps:
+                assert s.camera is not None and s.camera.source == "estimated"
+                assert (s.camera.camera is None) == (s.camera.failure is not None)
+                assert s.camera.seconds >= 0.0
+                rec = s.camera.to_json()
+                assert rec["camera_source"] == "estimated" and "camera_fit" in rec
+        for b in given.builds:  # type: ignore[attr-defined]
+            assert all(s.camera.source == "given" for s in b.steps)
+
+
+def test_poses_with_estimated_cameras_stay_close_to_given_ones(
+    runs: list[tuple[object, object, object]],
+):
+    right_given = right = total = 0
+    for _, given, run in runs:
+        r, t = accuracy(run)  # type: ignore[arg-type]
+        right, total = right + r, total + t
+        right_given += accuracy(given)[0]  # type: ignore[arg-type]
+    assert total >= 15
+    # what is lost on these manuals: a step whose base is a plate hidden under three new parts
+    assert right >= right_given - 4, (right, right_given, total)
+
+
+def test_blank_and_noise_pictures_fail_their_step_and_the_plan_goes_on(
+    manuals: Path, tmp_path: Path
+):
+    src = sorted(manuals.iterdir())[1]
+    dst = tmp_path / src.name
+    shutil.copytree(src, dst)
+    man = load_manual(dst)
+    steps = man.main.steps
+    assert len(steps) >= 5
+    size = man.image_size
+    Image.new("RGB", size, (250, 250, 250)).save(steps[1].image_path)
+    rng = np.random.default_rng(0)
+    noise = rng.integers(0, 256, (size[1], size[0], 3), dtype=np.uint8)
+    Image.fromarray(noise).save(steps[2].image_path)
+    run = run_manual(drop_cameras(load_manual(dst)), make_predictor("synthesis"))
+    main = run.main
+    for k in (1, 2):
+        s = main.steps[k]
+        assert s.camera is not None and s.camera.camera is None
+        assert s.camera.failure and s.camera.failure.startswith("camera could not be estimated")
+        assert all(p.failure == s.camera.failure for p in s.predictions)
+        assert not any(s.placed)
+    assert main.steps[0].camera.camera is not None  # type: ignore[union-attr]
+    # the plan goes on: a later step is estimated again
+    assert any(s.camera.camera is not None for s in main.steps[3:])  # type: ignore[union-attr]
+
+
+def test_blank_picture_fails_a_first_step(manuals: Path, tmp_path: Path):
+    man = load_manual(sorted(manuals.iterdir())[0])
+    blank = tmp_path / "blank.png"
+    Image.new("RGB", man.image_size, (255, 255, 255)).save(blank)
+    step = man.main.steps[0]
+    import dataclasses
+
+    est = next(
+        BuildCameras(man.image_size).hypotheses(
+            dataclasses.replace(step, image_path=blank, camera=None),
+            _bg.Assembly(),
+            man.primitive_components(),
+            False,
+        )
+    )
+    assert est.camera is None and est.failure is not None and "blank" in est.failure
+
+
+def test_infer_on_a_manual_without_cameras_writes_the_cameras_it_used(
+    manuals: Path, tmp_path: Path
+):
+    src = sorted(manuals.iterdir())[1]  # (the other loses its step 2: a hidden base)
+    stripped = tmp_path / "stripped"
+    r = subprocess.run(
+        [sys.executable, "-m", "mepnet.manual", "strip", str(src), "--out", str(stripped)]
+        + ["--no-cameras"],
+        capture_output=True,
+        text=True,
+    )
+    assert r.returncode == 0, r.stderr
+    assert all(
+        "camera" not in s for s in json.loads((stripped / "manual.json").read_text())["steps"]
+    )
+    out = tmp_path / "plan"
+    r = subprocess.run(
+        [sys.executable, "-m", "mepnet.infer", str(stripped), "--out", str(out)]
+        + ["--predictor", "synthesis", "--no-progress"],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert r.returncode == 0, r.stderr
+    plan = json.loads((out / "plan.json").read_text())
+    steps = plan["steps"] + [s for sub in plan["submodules"] for s in sub["steps"]]
+    for s in steps:
+        assert s["camera_source"] == "estimated"
+        assert (s["camera"] is None) == ("camera_failure" in s)
+        if s["camera"] is not None:
+            assert set(s["camera"]) == {"elevation", "azimuth", "roll", "scale", "translation"}
+            assert 0.0 <= s["camera_fit"] <= 1.0
+    assert sum(s["camera"] is not None for s in steps) >= 0.9 * len(steps)
+    assert plan["placed"] >= 0.9 * plan["components"]
+    # the same plan as with the manual's cameras, up to the frame (compared in Python)
+    man = load_manual(src)
+    given = run_manual(man, make_predictor("synthesis"))
+    estimated = run_manual(drop_cameras(man), make_predictor("synthesis"))
+    rg, total = accuracy(given)
+    re, _ = accuracy(estimated)
+    assert re >= rg - 1, (re, rg, total)
+
+
+def test_eval_with_estimated_cameras_reports_camera_errors(manuals: Path, tmp_path: Path):
+    one = sorted(manuals.iterdir())[0]
+    out = tmp_path / "m.json"
+    r = subprocess.run(
+        [sys.executable, "-m", "mepnet.eval", "--no-progress", "--data", str(one)]
+        + ["--predictor", "oracle", "--camera", "estimated", "--autoregressive"]
+        + ["--cd-points", "500", "--json", str(out)],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert r.returncode == 0, r.stderr
+    assert "estimated from the pictures" in r.stdout and "frame" in r.stdout
+    m = json.loads(out.read_text())
+    assert m["camera"] == "estimated"
+    for key in (
+        "camera_rotation_deg_median",
+        "camera_reprojection_px_median",
+        "camera_reprojection_px_mean",
+        "camera_first_reprojection_px_median",
+        "camera_seconds_per_step",
+        "camera_failures",
+    ):
+        assert key in m
+    assert m["camera_steps"] == m["n_steps"] and m["camera_failures"] <= 1
+    assert m["camera_reprojection_px_median"] < 2.0
+    bad = subprocess.run(
+        [sys.executable, "-m", "mepnet.eval", "--data", str(one), "--predictor", "oracle"]
+        + ["--camera", "guessed"],
+        capture_output=True,
+        text=True,
+    )
+    assert bad.returncode == 2 and len(bad.stderr.strip().splitlines()) == 1
+
+
+# ---------------------------------------------------------------------------------------------
+# Frames
+
+
+def test_motions_compose_invert_and_move_cameras():
+    m = Motion(1, (3, 2, -5))
+    assert m.inverse().after(m).is_identity and m.after(m.inverse()).is_identity
+    yaw, t = m.apply(2, (5, 1, 7))
+    assert m.inverse().apply(yaw, t) == (2, (5, 1, 7))
+    cam = _bg.Camera(27.0, 300.0, 3.0, 0.02, (0.1, -0.2))
+    pts = np.array([[10.0, 8.0, 30.0], [-40.0, 16.0, 0.0], [0.0, 0.0, 0.0]])
+    shifted = np.array([rotate_ldu(p, 1) + np.array([30.0, 16.0, -50.0]) for p in pts])
+    a, _ = cam.project(pts, 256, 256)
+    b, _ = moved_camera(cam, m).project(shifted, 256, 256)
+    assert np.abs(a - b).max() < 1e-9
+
+
+def test_symmetries_and_candidate_motions():
+    brick = _bg.Component.primitive("3001")
+    square = _bg.Component.primitive("3003")
+    slope = _bg.Component.primitive("3039")
+    assert [m.turn for m in symmetries([(brick, 0, (0, 3, 0), 4)])] == [2]
+    assert [m.turn for m in symmetries([(square, 0, (0, 3, 0), 4)])] == [1, 2, 3]
+    assert symmetries([(slope, 0, (0, 3, 0), 4)]) == []
+    pred, true = [(slope, 0, (0, 3, 0), 4)], [(slope, 1, (4, 3, 4), 4)]
+    found = [m for m in candidate_motions(pred, true) if matches(pred, true, m) == 1]
+    assert found == [Motion(1, (4, 0, 4))]
+    assert matches(pred, true) == 0
+    assert moved(pred[0], found[0])[1:3] == (1, (4, 3, 4))
+
+
+# ---------------------------------------------------------------------------------------------
+# Binding
+
+
+def test_binding_types_and_bad_input():
+    rgb = np.full((80, 100, 3), 255, np.uint8)
+    rgb[20:60, 20:80] = (200, 30, 30)
+    fg, bg = _bg.foreground_mask(rgb)
+    assert fg.dtype == np.bool_ and fg.shape == (80, 100) and bg == (255, 255, 255)
+    assert fg.sum() == 40 * 60
+    hist = _bg.edge_directions(rgb)
+    assert hist.shape == (360,) and math.isclose(float(hist.sum()), 1.0, rel_tol=1e-6)
+    # horizontal and vertical edges: directions near 0 (180) and 90 degrees, 3:2 by length
+    near_0, near_90 = hist[[0, 1, 358, 359]].sum(), hist[178:182].sum()
+    assert near_0 + near_90 > 0.8 and 1.2 < near_0 / near_90 < 2.2, (near_0, near_90)
+    with pytest.raises(ValueError, match="H, W, 3"):
+        _bg.foreground_mask(np.zeros((4, 4, 4), np.uint8))
+    pic = _bg.FitPicture(rgb)
+    assert pic.size == (100, 80)
+    asm = _bg.Assembly()
+    asm.add(_bg.Component.primitive("3001"), 0, (0, 3, 0))
+    cam = _bg.Camera(30.0, 315.0, 0.0, 0.02, (0.0, 0.0))
+    with pytest.raises(ValueError, match="foreground mask has shape"):
+        _bg.fit_camera(asm, pic, np.zeros((3, 3), bool), cam)
+    with pytest.raises(_bg.BrickGeomError, match="empty shape"):
+        _bg.fit_camera(_bg.Assembly(), pic, fg, cam)
+    with pytest.raises(_bg.BrickGeomError, match="levels"):
+        _bg.fit_camera(asm, pic, fg, cam, levels=[])
+    fit = _bg.fit_camera(asm, pic, fg, cam, levels=[0], iterations=0)
+    assert isinstance(fit, _bg.CameraFit) and isinstance(fit.camera, _bg.Camera)
+    assert 0.0 <= fit.agree <= 1.0 and 0.0 <= fit.iou <= 1.0 and fit.samples > 0
+    sil = _bg.box_silhouette(asm, cam, 100, 80)
+    assert sil.dtype == np.bool_ and sil.shape == (80, 100) and sil.any()
+    ranked = _bg.search_placements(asm, _bg.Component.primitive("3003"), fg, [(30.0, 315.0, 0.0)])
+    assert ranked and all(0.0 <= r[0] <= 1.0 for r in ranked)
+    assert ranked == sorted(ranked, key=lambda r: -r[0])
