@@ -83,6 +83,9 @@ LEVELS_CLOSE = (1, 0)
 #: Fit levels from a sweep's start, and of the check after prediction.
 LEVELS_INSIDE = (4, 1, 0)
 LEVELS_CHECK = (1, 0)
+#: A fit from a sweep's start renders the shape again before a level only when the camera
+#: moved this much (pixels) since the last render (the last level always renders).
+INSIDE_RERENDER_PX = 1.5
 #: A fit to a picture that shows exactly the shape is good when this share of the shape's
 #: pixels agree in colour and the silhouettes overlap this much.
 FULL_AGREE, FULL_IOU = 0.6, 0.5
@@ -110,6 +113,9 @@ FIT_ITERATIONS = 5
 #: Scale sweep: weight of a pixel's squared colour difference against +1 for lying on the
 #: drawing (a brown brick is not where the picture is blue, however well it fits inside).
 SWEEP_COLOUR = 4.0
+#: Scale sweep: the zoom a step usually changes by (ratio to the previous scale): the best
+#: start within it is tried first.
+SWEEP_PRIOR = (0.55, 1.8)
 #: Scale sweep: ratios to the previous scale (coarse), then finer around the best.
 SWEEP_RATIOS = tuple(float(r) for r in np.geomspace(0.25, 4.0, 13))
 
@@ -140,7 +146,8 @@ class CameraEstimate:
     #: How it was found: ``given``, ``first step``, ``carried`` (the previous orientation),
     #: ``turned`` (a quarter turn of it), ``joint`` (with the placement of the step's one
     #: component), ``searched`` (the whole view sphere), ``registered`` (the last picture with a
-    #: camera found again in this one: the shape built so far does not fit).
+    #: camera found again in this one: the shape built so far does not fit); ``(weak)`` added
+    #: when the known shape hardly agrees with the picture (hidden by new parts).
     how: str = "given"
     #: Why there is no camera (the step's components fail with this reason).
     failure: str | None = None
@@ -438,6 +445,7 @@ class BuildCameras:
         init: _bg.Camera,
         levels: tuple[int, ...],
         free: tuple[bool, ...] = (True,) * 6,
+        rerender_px: float = 0.0,
     ) -> _bg.CameraFit:
         return _bg.fit_camera(
             shape,
@@ -446,6 +454,7 @@ class BuildCameras:
             init,
             free=free,
             levels=list(levels),
+            rerender_px=rerender_px,
             iterations=FIT_ITERATIONS,
             samples=FIT_SAMPLES,
         )
@@ -542,11 +551,13 @@ class BuildCameras:
     ) -> list[tuple[float, _bg.Camera]]:
         """Scale and translation, for the orientation of ``ref``, that put a reference (a
         silhouette and its colours as camera ``ref`` sees them) where the picture shows it: the
-        reference resampled at scales around ``ref.scale`` (coarse, then finer around the best),
+        reference resampled at scales around ``ref.scale`` (coarse, then finer around the best
+        overall and the best within :data:`SWEEP_PRIOR`),
         each placed by FFT cross-correlation with the reduced picture, every pixel of the
         reference scoring +1 on the drawing, -2 off it, less :data:`SWEEP_COLOUR` times its
         squared colour difference (so the reference is as large as the drawing allows, where
-        its colours are). The best ``starts`` distinct placements, best first."""
+        its colours are). The best ``starts`` distinct placements: the best within
+        :data:`SWEEP_PRIOR` first, then the best overall."""
         target = pic.small
         h, w = target.shape
         pad = (2 * h, 2 * w)
@@ -580,24 +591,37 @@ class BuildCameras:
         if not coarse:
             return []
         step = SWEEP_RATIOS[1] / SWEEP_RATIOS[0]
-        best = max(coarse, key=lambda s: s[0])[1]
-        fine = coarse + [
-            x for k in (-2 / 3, -1 / 3, 1 / 3, 2 / 3) for x in place(best.scale * step**k)
-        ]
+
+        def near(c: _bg.Camera) -> bool:  # within the zoom a step usually changes by
+            return SWEEP_PRIOR[0] <= c.scale / cam.scale <= SWEEP_PRIOR[1]
+
+        # refined around the best overall and the best within the usual zoom (a base mostly
+        # hidden by new parts of other colours scores best shrunk into one of its own faces)
+        fine = list(coarse)
+        for pool in (coarse, [x for x in coarse if near(x[1])]):
+            if pool:
+                best = max(pool, key=lambda s: s[0])[1]
+                fine += [
+                    x for k in (-2 / 3, -1 / 3, 1 / 3, 2 / 3) for x in place(best.scale * step**k)
+                ]
         fine.sort(key=lambda s: -s[0])
         out: list[tuple[float, _bg.Camera]] = []
-        for score, c in fine:
-            if all(_start_distance(c, o, w) > 2.0 for _, o in out):
-                out.append((score, c))
-            if len(out) == starts:
-                break
+        for group in ([x for x in fine if near(x[1])][:1], fine):
+            for score, c in group:
+                if len(out) < starts and all(_start_distance(c, o, w) > 2.0 for _, o in out):
+                    out.append((score, c))
         return out
 
     def _fit_inside(self, shape: _bg.Assembly, pic: _Picture, start: _bg.Camera) -> _bg.CameraFit:
         """Scale and translation of ``start``'s orientation fitted to a picture that shows
         ``shape`` with new parts on it."""
         return self._fit(
-            shape, pic, start, LEVELS_INSIDE, free=(False, False, False, True, True, True)
+            shape,
+            pic,
+            start,
+            LEVELS_INSIDE,
+            free=(False, False, False, True, True, True),
+            rerender_px=INSIDE_RERENDER_PX,
         )
 
     # -- the steps -----------------------------------------------------------------------------
@@ -699,10 +723,13 @@ class BuildCameras:
                 anchor = self._edge_check(base, prev_pic, pic, anchor, anchor_fit)
         yielded: list[_bg.Camera] = []
 
-        def offer(fits: list[tuple[_bg.CameraFit, str]], ok: Any) -> Iterator[CameraEstimate]:
+        def offer(
+            fits: list[tuple[_bg.CameraFit, str]], ok: Any, weak: bool = False
+        ) -> Iterator[CameraEstimate]:
             for f, how in fits:
                 if ok(f) and all(_camera_distance(f.camera, c, pic) > 1.0 for c in yielded):
                     yielded.append(f.camera)
+                    how = f"{how} (weak)" if weak else how
                     yield CameraEstimate(f.camera, "estimated", f.agree, how, seconds=clock.lap())
 
         first: list[tuple[_bg.CameraFit, str]] = []
@@ -729,7 +756,9 @@ class BuildCameras:
             more.sort(key=lambda fh: -_part_score(fh[0]))
             yield from offer(more, _part_ok)
         # a base hidden by new parts agrees little: what lies inside the drawing
-        yield from offer(more, lambda f: f.inside >= PART_INSIDE and f.agree >= MIN_AGREE)
+        yield from offer(
+            more, lambda f: f.inside >= PART_INSIDE and f.agree >= MIN_AGREE, weak=True
+        )
         if not yielded and self._last_good is not None:
             # the shape built so far is wrong (built on mistakes) or hidden: the last picture
             # with a camera found again in this one, zoomed and panned

@@ -255,6 +255,7 @@ def _estimated_camera_step(
                 return preds, seconds, est
             break
         unverified = est.fit is None  # a first step's prior view: judged by its check
+        explained = False
         for again in (False, True):
             preds, s = predict(dataclasses.replace(page_step, camera=est.step_camera()))
             seconds += s
@@ -262,16 +263,20 @@ def _estimated_camera_step(
             shape = _trial_shape(base, preds, components, page_step)
             fit = cameras.check(page_step, shape, est)
             spent += time.perf_counter() - t0
-            # a first step's camera fitted to its predicted shape: predicted again with it
-            if again or len(base) > 0 or fit is None or fit.moved_px <= REPREDICT_PX:
+            score = -1.0 if fit is None else fit.iou + fit.agree
+            if est.how in ("turned", "searched") or est.how.endswith("(weak)"):
+                score -= UNLIKELY  # a turned, searched or weak view needs clearly better evidence
+            # (predicted again with the camera fitted to the step: kept unless clearly worse)
+            if best is None or score > best[0] or (again and score >= best[0] - 0.02):
+                best = (score, preds, est, fit, shape, unverified)
+            explained = (
+                fit is not None and fit.iou >= EXPLAINED_IOU and fit.agree >= EXPLAINED_AGREE
+            )
+            # the camera fitted to the predicted step moved: predicted again with it
+            if again or fit is None or fit.moved_px <= REPREDICT_PX:
                 break
             est = dataclasses.replace(est, camera=fit.camera, fit=fit.agree)
-        score = -1.0 if fit is None else fit.iou + fit.agree
-        if est.how in ("turned", "searched"):
-            score -= UNLIKELY  # a turned or searched view needs clearly better evidence
-        if best is None or score > best[0]:
-            best = (score, preds, est, fit, shape, unverified)
-        if fit is not None and fit.iou >= EXPLAINED_IOU and fit.agree >= EXPLAINED_AGREE:
+        if explained:
             break
     assert best is not None
     _, preds, est, fit, shape, unverified = best
