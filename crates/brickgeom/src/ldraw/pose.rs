@@ -50,5 +50,8 @@ pub fn ldraw_placement(pose: Pose) -> ([f64; 3], [[f64; 3]; 3]) {
         -f64::from(pose.t[2]) * 10.0 + 0.0,
     ];
     let ldraw_yaw = (4 - pose.yaw % 4) % 4;
-    (position, yaw_matrix(ldraw_yaw).map(|row| row.map(f64::from)))
+    (
+        position,
+        yaw_matrix(ldraw_yaw).map(|row| row.map(f64::from)),
+    )
 }
