@@ -108,6 +108,8 @@ TIE = 0.05
 JOINT_STARTS = 3
 #: Pixels of the known shape (and of the page around it) a fit samples at most.
 FIT_SAMPLES = 3000
+#: The fit's template outlines, as a share of the renderer's own (0: faces only).
+FIT_LINES = 1.0
 #: Gauss-Newton iterations per fit level.
 FIT_ITERATIONS = 5
 #: Scale sweep: weight of a pixel's squared colour difference against +1 for lying on the
@@ -414,7 +416,9 @@ class BuildCameras:
         (``agree``, ``iou``), and the refined camera. None when nothing is placed."""
         if est.camera is None or len(shape) == 0:
             return None
-        return self._fit(shape, self.picture(step), est.camera, LEVELS_CHECK)
+        return self._fit(
+            shape, self.picture(step), est.camera, LEVELS_CHECK, rerender_px=INSIDE_RERENDER_PX
+        )
 
     def accept(
         self,
@@ -455,6 +459,7 @@ class BuildCameras:
             free=free,
             levels=list(levels),
             rerender_px=rerender_px,
+            lines=FIT_LINES,
             iterations=FIT_ITERATIONS,
             samples=FIT_SAMPLES,
         )
@@ -482,7 +487,9 @@ class BuildCameras:
             return None
         return _prefer_front([(f, "") for f in fits], lambda f: f.agree)[0][0]
 
-    def _sweep(self, shape: _bg.Assembly, pic: _Picture, cam: _bg.Camera) -> list[_bg.Camera]:
+    def _sweep(
+        self, shape: _bg.Assembly, pic: _Picture, cam: _bg.Camera, wide: bool = True
+    ) -> list[_bg.Camera]:
         """Scale and translation for ``cam``'s orientation that put the shape where the picture
         shows it (:meth:`_match` of the shape rendered once). The cameras of the three best
         distinct starts."""
@@ -492,7 +499,7 @@ class BuildCameras:
         )
         render = _bg.render(shape, ref, n, n)
         rgb = render.rgb.astype(np.float32) / 255.0
-        return [c for _, c in self._match(render.ids >= 0, rgb, ref, pic)]
+        return [c for _, c in self._match(render.ids >= 0, rgb, ref, pic, wide=wide)]
 
     def _register(
         self, prev_pic: _Picture, prev_cam: _bg.Camera, pic: _Picture
@@ -548,6 +555,7 @@ class BuildCameras:
         ref: _bg.Camera,
         pic: _Picture,
         starts: int = 3,
+        wide: bool = True,
     ) -> list[tuple[float, _bg.Camera]]:
         """Scale and translation, for the orientation of ``ref``, that put a reference (a
         silhouette and its colours as camera ``ref`` sees them) where the picture shows it: the
@@ -587,13 +595,18 @@ class BuildCameras:
             return out
 
         cam = ref
-        coarse = [x for r in SWEEP_RATIOS for x in place(cam.scale * r)]
+
+        def near_ratio(r: float) -> bool:
+            return SWEEP_PRIOR[0] <= r <= SWEEP_PRIOR[1]
+
+        ratios = SWEEP_RATIOS if wide else [r for r in SWEEP_RATIOS if near_ratio(r)]
+        coarse = [x for r in ratios for x in place(cam.scale * r)]
         if not coarse:
             return []
         step = SWEEP_RATIOS[1] / SWEEP_RATIOS[0]
 
         def near(c: _bg.Camera) -> bool:  # within the zoom a step usually changes by
-            return SWEEP_PRIOR[0] <= c.scale / cam.scale <= SWEEP_PRIOR[1]
+            return near_ratio(c.scale / cam.scale)
 
         # refined around the best overall and the best within the usual zoom (a base mostly
         # hidden by new parts of other colours scores best shrunk into one of its own faces)
@@ -733,10 +746,12 @@ class BuildCameras:
                     yield CameraEstimate(f.camera, "estimated", f.agree, how, seconds=clock.lap())
 
         first: list[tuple[_bg.CameraFit, str]] = []
-        starts: list[_bg.Camera] = []
         if anchor is not None:
-            starts = self._sweep(base, pic, anchor)
-            first = [(self._fit_inside(base, pic, c), "carried") for c in starts[:1]]
+            # the usual zoom first; every scale only when asked for more
+            first = [
+                (self._fit_inside(base, pic, c), "carried")
+                for c in self._sweep(base, pic, anchor, wide=False)[:1]
+            ]
             yield from offer(first, _part_ok)
         # the base may be mostly hidden by the new part, or say little about the view: camera
         # and placement together
@@ -744,7 +759,12 @@ class BuildCameras:
         more = list(first)
         if anchor is not None:
             # the base may be turned round: other starts and quarter turns
-            more += [(self._fit_inside(base, pic, c), "carried") for c in starts[1:]]
+            starts = self._sweep(base, pic, anchor)
+            more += [
+                (self._fit_inside(base, pic, c), "carried")
+                for c in starts
+                if all(_camera_distance(c, f.camera, pic) > 2.0 for f, _ in first)
+            ]
             for k in (1, 2, 3):
                 turned = _with(anchor, azimuth=anchor.azimuth + 90.0 * k)
                 for start in self._sweep(base, pic, turned)[:1]:

@@ -361,11 +361,16 @@ def _true(run: ManualRun, s: StepRun) -> list[Any]:
     return [(comps[i.component], i.yaw, i.t, i.colour) for i in s.truth.placed()]
 
 
+#: Most voted motions of a build tried beside its first step's alignments.
+MOTION_CANDIDATES = 8
+
+
 def step_motion(run: ManualRun, b: BuildRun, s: StepRun) -> Motion:
     """The motion taking a step's predictions into the truth's frame: the identity with the
     cameras the manual states; with estimated ones, autoregressive: one motion per build (from
-    those aligning a first-step prediction with a true first-step instance, the one under which
-    most of the build is right); teacher-forced: for the first step the best such motion, for
+    those aligning a first-step prediction with a true first-step instance and those most
+    predicted placements of the build vote for, the one under which most of the build is
+    right); teacher-forced: for the first step the best such motion, for
     a later step the identity or a motion mapping the true base onto itself, whichever makes
     more of the step right (a symmetric base looks the same either way)."""
     if s.truth is None or not frame_free(b):
@@ -375,12 +380,20 @@ def step_motion(run: ManualRun, b: BuildRun, s: StepRun) -> Motion:
         return run.motions[key]
     first = b.steps[0]
     if not run.teacher_forced:
-        candidates = candidate_motions(predicted_placements(run, first), _true(run, first))
         pairs = [
             (predicted_placements(run, x), _true(run, x)) for x in b.steps if x.truth is not None
         ]
+        # the first step's alignments, and the motions most pairs of a predicted and a true
+        # placement of any step vote for (a first part hidden under the second leaves its
+        # position under it free: the rest of the build is then right under another motion)
+        votes: dict[Motion, int] = {}
+        for pred, true in pairs:
+            for m in candidate_motions(pred, true)[1:]:
+                votes[m] = votes.get(m, 0) + 1
+        candidates = candidate_motions(predicted_placements(run, first), _true(run, first))
+        candidates += sorted(votes, key=lambda m: -votes[m])[:MOTION_CANDIDATES]
         best, hits = IDENTITY, -1
-        for m in candidates:
+        for m in dict.fromkeys(candidates):
             h = sum(matches(pred, true, m) for pred, true in pairs)
             if h > hits:
                 best, hits = m, h

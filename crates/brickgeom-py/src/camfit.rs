@@ -235,10 +235,12 @@ impl PyCameraFit {
 /// Fit a camera to a picture (`FitPicture`) of `assembly` from `init` (photometric, coarse
 /// to fine over box-blur radii `levels`, the shape rendered anew at a level when the camera moved
 /// more than `rerender_px` since the last render, and at the last level; `free` says which of elevation, azimuth, roll, ln scale, tx,
-/// ty move; `prior`: (centre, weight) per parameter). `foreground` (H, W) bool scores the result.
+/// ty move; `prior`: (centre, weight) per parameter; `lines`: the template's outline width as a
+/// share of the renderer's, 0 for faces only). `foreground` (H, W) bool scores the result.
 #[pyfunction(name = "fit_camera")]
 #[pyo3(signature = (assembly, picture, foreground, init, free=(true, true, true, true, true, true),
-    levels=vec![4, 2, 1, 0, 0], rerender_px=0.0, iterations=8, tukey=0.3, samples=6000, prior=None))]
+    levels=vec![4, 2, 1, 0, 0], rerender_px=0.0, iterations=8, tukey=0.3, samples=6000, prior=None,
+    lines=1.0))]
 #[allow(clippy::too_many_arguments)]
 fn fit_camera_py(
     py: Python<'_>,
@@ -253,6 +255,7 @@ fn fit_camera_py(
     tukey: f64,
     samples: usize,
     prior: Option<([f64; 6], [f64; 6])>,
+    lines: f32,
 ) -> PyResult<PyCameraFit> {
     let (w, h) = picture.inner.size();
     let fg = mask_of(&foreground, w, h, "fit_camera")?;
@@ -264,6 +267,7 @@ fn fit_camera_py(
         tukey,
         samples,
         prior,
+        lines,
     };
     let asm = &assembly.inner;
     let cam = init.inner;

@@ -705,6 +705,9 @@ pub struct FitOptions {
     /// A Gaussian prior on the parameters: centre and weight per parameter (0: none), in units
     /// of the mean robust cost per sample.
     pub prior: Option<(Params, Params)>,
+    /// Outline width of the template render, as a share of the renderer's own (0: faces only:
+    /// pictures whose lines are drawn otherwise then align by their colour regions).
+    pub lines: f32,
 }
 
 impl Default for FitOptions {
@@ -717,6 +720,7 @@ impl Default for FitOptions {
             tukey: 0.3,
             samples: 6000,
             prior: None,
+            lines: 1.0,
         }
     }
 }
@@ -746,6 +750,12 @@ impl FitOptions {
             return bad(format!(
                 "fit needs >= 16 samples and <= 1000 iterations, got {} and {}",
                 self.samples, self.iterations
+            ));
+        }
+        if !(0.0..=4.0).contains(&self.lines) {
+            return bad(format!(
+                "fit lines must be within [0, 4], got {}",
+                self.lines
             ));
         }
         if let Some((c, wgt)) = &self.prior {
@@ -929,16 +939,19 @@ struct Template {
     silhouette: Vec<bool>,
 }
 
+#[allow(clippy::too_many_arguments)]
 fn render_template(
     asm: &Assembly,
     camera: &Camera,
     w: usize,
     h: usize,
     samples: usize,
+    lines: f32,
     source: &MeshSource,
     colours: &ColourTable,
 ) -> Result<Template> {
-    let opts = RenderOptions::new(w as u32, h as u32);
+    let mut opts = RenderOptions::new(w as u32, h as u32);
+    opts.line_px *= lines;
     let r = render_assembly(asm, camera, &opts, colours, source)?;
     let silhouette: Vec<bool> = r.ids.iter().map(|&i| i >= 0).collect();
     // The page around the shape: a ring of background pixels, each with the depth of the shape
@@ -1254,7 +1267,16 @@ pub fn fit_camera(
     let mut last_cost = f64::NAN;
     let mut agree = 0.0;
     let render = |p: &Params| -> Result<(Template, Params)> {
-        let t = render_template(asm, &camera_of(p)?, w, h, opts.samples, source, colours)?;
+        let t = render_template(
+            asm,
+            &camera_of(p)?,
+            w,
+            h,
+            opts.samples,
+            opts.lines,
+            source,
+            colours,
+        )?;
         Ok((t, *p))
     };
     let (mut template, mut rendered_at) = render(&p)?;
