@@ -444,4 +444,5 @@ def fit_camera(
     tukey: float = 0.3,
     samples: int = 6000,
     prior: tuple[Sequence[float], Sequence[float]] | None = None,
+    lines: float = 1.0,
 ) -> CameraFit: ...
