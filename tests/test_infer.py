@@ -227,3 +227,4 @@ def test_manual_folder_to_plan_files(tmp_path: Path):
         len(s["steps"]) for s in plan["submodules"]
     )
     assert "components exactly right (100.0%)" in r.stdout
+    assert (out / "report.html").is_file()  # tests/test_report.py reads it

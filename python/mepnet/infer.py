@@ -6,9 +6,9 @@
 A manual folder (``manual.json`` + step images; with no argument, the example manual bundled in
 the package): the predictor (by default the detector with the bundled slim weights, or
 ``--weights``; or ``synthesis`` / ``oracle`` / ``oracle-noisy`` / ``oracle-abys``) runs over the manual tree,
-submodules first, on its own predictions, and ``plan.json``, ``plan.mpd`` and step overlays are
-written to ``--out``; a per-step table is printed, with accuracy against the manual's ground
-truth.
+submodules first, on its own predictions, and ``plan.json``, ``plan.mpd``, step overlays and
+``report.html`` (the plan to look at in a browser, :mod:`mepnet.report`) are written to
+``--out``; a per-step table is printed, with accuracy against the manual's ground truth.
 
 An LDraw model (.ldr/.mpd): its existing build plan is printed submodules first, with every
 step's lattice and LDraw poses and whether it is physically valid; ``--out`` renders every step.
@@ -206,7 +206,7 @@ def run_manual_folder(path: Path, args: argparse.Namespace) -> int:
         )
     else:
         summary = f"{plan['placed']}/{total} components placed (the manual has no answers to score)"
-    print(f"\n{summary}; wrote {out}/plan.json, plan.mpd and overlays")
+    print(f"\n{summary}; wrote {out}/plan.json, plan.mpd, report.html and overlays")
     return 0
 
 

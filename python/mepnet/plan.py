@@ -619,6 +619,8 @@ def write_plan(run: ManualRun, out: str | os.PathLike[str]) -> dict[str, Any]:
     plan document."""
     from PIL import Image
 
+    from mepnet.report import write_report
+
     plan = plan_json(run)
     with atomic_folder(out, PLAN_WRITER) as tmp:
         write_ldraw(tmp / "plan.mpd", plan_ldraw(run))
@@ -632,4 +634,5 @@ def write_plan(run: ManualRun, out: str | os.PathLike[str]) -> dict[str, Any]:
                 cam = s.camera.camera if s.camera is not None else step.camera_object()
                 img = step.image() if cam is None else overlay(step.image(), new, cam)
                 Image.fromarray(img).save(tmp / f"{prefix}overlay_{s.index:03d}.png")
+        write_report(tmp, plan, run.manual, run.components)  # report.html, beside the overlays
     return plan
