@@ -19,8 +19,11 @@ __all__ = [
     "fit_gain_bias",
     "fit_tone",
     "outline_of",
+    "previous_change",
+    "same_view",
     "state_projection",
     "state_render",
+    "warp_previous",
 ]
 
 #: A pixel of the change map above this is part of something new.
@@ -158,3 +161,71 @@ def change_map(image: np.ndarray, state: np.ndarray, tone: np.ndarray | None = N
         gain, bias = float(tone[0, c]), float(tone[1, c])
         np.maximum(out, np.abs(image[c] - (gain * state[c] + bias)), out=out)
     return np.clip(out, 0.0, 1.0)
+
+
+#: Largest difference (degrees) of elevation, azimuth or roll for which two cameras count as
+#: one view (:func:`same_view`): estimated cameras wobble by hundredths of a degree.
+SAME_VIEW_DEG = 0.25
+
+
+def same_view(a: dict[str, Any], b: dict[str, Any]) -> bool:
+    """Whether two step cameras look from the same direction (they may zoom and pan): then,
+    the projection being orthographic, one picture maps onto the other by a scale and a shift."""
+
+    def off(x: float, y: float) -> float:
+        return abs((x - y + 180.0) % 360.0 - 180.0)
+
+    return all(
+        off(float(a[k]), float(b[k])) <= SAME_VIEW_DEG for k in ("elevation", "azimuth", "roll")
+    )
+
+
+def warp_previous(
+    picture: np.ndarray, camera: dict[str, Any], to_camera: dict[str, Any], size: int
+) -> np.ndarray | None:
+    """The previous step's ``picture`` ((3, H, W) floats in [0, 1]), drawn with ``camera``,
+    seen with ``to_camera`` at ``size`` px: the base shape drawn by the manual's own renderer,
+    in its own style, where the step's picture shows it (bilinear; what the previous picture did
+    not show is filled with its page colour, the median of its border). None when the two
+    cameras do not share a view (:func:`same_view`): the model was turned between the steps."""
+    if not same_view(camera, to_camera):
+        return None
+    _, h, w = picture.shape
+    k = float(camera["scale"]) / float(to_camera["scale"])
+    (t1x, t1y), (t2x, t2y) = camera["translation"], to_camera["translation"]
+    # NDC of the output pixel centres -> NDC in the previous picture -> its pixel coordinates
+    n = (np.arange(size) + 0.5) / size * 2 - 1
+    x = ((k * (n - t2x) + t1x) + 1) / 2 * w - 0.5
+    y = (1 - (k * (-n - t2y) + t1y)) / 2 * h - 0.5  # rows: NDC y = 1 - 2 (row + 0.5) / size
+    border = np.concatenate(
+        [picture[:, 0], picture[:, -1], picture[:, :, 0], picture[:, :, -1]], axis=1
+    )
+    page = np.median(border, axis=1).astype(np.float32)
+    x0 = np.floor(x).astype(np.int64)
+    y0 = np.floor(y).astype(np.int64)
+    fx = (x - x0).astype(np.float32)[None, :]
+    fy = (y - y0).astype(np.float32)[:, None]
+    out = np.empty((3, size, size), np.float32)
+    for c in range(3):
+        padded = np.pad(picture[c].astype(np.float32), 1, constant_values=page[c])
+        xi = np.clip(x0 + 1, 0, w + 1)  # indices into the padded picture
+        yi = np.clip(y0 + 1, 0, h + 1)
+        xj = np.clip(x0 + 2, 0, w + 1)
+        yj = np.clip(y0 + 2, 0, h + 1)
+        a = padded[yi[:, None], xi[None, :]]
+        b = padded[yi[:, None], xj[None, :]]
+        cc = padded[yj[:, None], xi[None, :]]
+        d = padded[yj[:, None], xj[None, :]]
+        out[c] = (a * (1 - fx) + b * fx) * (1 - fy) + (cc * (1 - fx) + d * fx) * fy
+        # far outside the previous picture: its page
+        outside = (y[:, None] < -1) | (y[:, None] > h) | (x[None, :] < -1) | (x[None, :] > w)
+        out[c][outside] = page[c]
+    return out
+
+
+def previous_change(image: np.ndarray, previous: np.ndarray) -> np.ndarray:
+    """Where the step's ``image`` differs from the previous picture seen with its camera
+    (:func:`warp_previous`; both (3, H, W) in [0, 1]), (H, W): the largest absolute channel
+    difference, after a tone fit as :func:`change_map` (a manual's renderer is consistent
+    within the manual, so this is usually the identity)."""
+    return change_map(image, previous)

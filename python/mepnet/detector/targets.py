@@ -136,12 +136,16 @@ def make_sample(
     augment: bool = False,
     rng: np.random.Generator | None = None,
     slot_types: Sequence[int] | None = None,
+    change: np.ndarray | None = None,
 ) -> StepSample:
     """Network inputs of a page ``step`` (its image, camera and callout) on the shape ``base``,
     and, with ``truth`` (the step's answers: training), the targets. Without ``truth`` (a
     predictor: it never sees the answers) the targets are zeros and there is no augmentation.
     ``slot_types``: which of the step's component types (:func:`component_slots`) fill the K_max
-    slots (default: the first K_max); a step with more types takes several samples."""
+    slots (default: the first K_max); a step with more types takes several samples.
+    ``change``: the step's change map at any resolution (``mepnet.stage2.synthesis.step_change``,
+    which also reads the previous step's picture), else computed here from the base as mepnet
+    renders it."""
     rng = rng or np.random.default_rng(0)
     slots = component_slots(step)
     types = list(slot_types) if slot_types is not None else list(range(len(slots)))
@@ -216,7 +220,10 @@ def make_sample(
             inst_valid[k_inst] = 1.0
             k_inst += 1
     state_index, state_maps = state_projection(base, cam, cfg.image_size, cfg.base_grid)
-    state_maps[9] = change_map(image[:3], state_maps[6:9])
+    if change is None:
+        state_maps[9] = change_map(image[:3], state_maps[6:9])
+    else:
+        state_maps[9] = _resized(change, cfg.image_size)
     t = {
         "image": torch.from_numpy(image),
         "base_voxels": torch.from_numpy(base_voxels(base, cfg.base_grid))[None],
@@ -236,6 +243,14 @@ def make_sample(
         "turn": torch.tensor(turn, dtype=torch.int64),
     }
     return StepSample(tensors=t)
+
+
+def _resized(a: np.ndarray, size: int) -> np.ndarray:
+    """An (H, W) map resized to (size, size) (bilinear)."""
+    if a.shape == (size, size):
+        return a.astype(np.float32)
+    t = torch.from_numpy(np.ascontiguousarray(a, dtype=np.float32))[None, None]
+    return F.interpolate(t, size=(size, size), mode="bilinear", align_corners=False)[0, 0].numpy()
 
 
 #: Line restyling: probability of heavier outlines, and of fainter ones.

@@ -30,6 +30,10 @@ class StepContext:
     base: _bg.Assembly
     components: dict[ComponentRef, _bg.Component]
     image_size: tuple[int, int]
+    #: The build's previous page step, its ``camera`` the one it was predicted with (given or
+    #: estimated; None when there was none): its picture shows the base shape as the manual's
+    #: own renderer draws it. None on a build's first step.
+    previous: Step | None = None
 
     @property
     def camera(self) -> _bg.Camera:

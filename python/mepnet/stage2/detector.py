@@ -71,7 +71,12 @@ class MEPNetPredictor(Predictor):
         for first in range(0, len(slots), self.cfg.k_max):
             chunk = list(range(first, min(first + self.cfg.k_max, len(slots))))
             sample = make_sample(
-                ctx.step, self.cfg, base=ctx.base, components=ctx.components, slot_types=chunk
+                ctx.step,
+                self.cfg,
+                base=ctx.base,
+                components=ctx.components,
+                slot_types=chunk,
+                change=change,
             )
             out = self.model(collate([sample]))
             if change is None and self.use_change:

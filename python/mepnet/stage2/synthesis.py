@@ -31,7 +31,14 @@ from mepnet import _brickgeom as _bg
 from mepnet.errors import ManualFormatError
 from mepnet.geom import LDU_PER_CELL, rotate_ldu
 from mepnet.stage2.base import Prediction, Predictor, StepContext
-from mepnet.state import CHANGE_THRESHOLD, change_map, fit_tone, state_render
+from mepnet.state import (
+    CHANGE_THRESHOLD,
+    change_map,
+    fit_tone,
+    previous_change,
+    state_render,
+    warp_previous,
+)
 
 #: Weight of the detector's type belief (mean over a candidate's visible pixels).
 TYPE_WEIGHT = 0.3
@@ -117,7 +124,25 @@ def step_change(ctx: StepContext, picture: np.ndarray) -> tuple[np.ndarray, np.n
     state, outline = state_render(ctx.base, ctx.step.camera, w)  # type: ignore[arg-type]
     image = picture.transpose(2, 0, 1)
     tone = fit_tone(image, state)
-    return tolerate_lines(change_map(image, state, tone), outline), tone
+    change = change_map(image, state, tone)
+    before = previous_picture(ctx)
+    if before is not None:
+        # a pixel the manual's own picture of the base explains has not changed, however
+        # unlike ours its renderer draws
+        np.minimum(change, previous_change(image, before), out=change)
+    return tolerate_lines(change, outline), tone
+
+
+def previous_picture(ctx: StepContext) -> np.ndarray | None:
+    """The previous step's picture seen with this step's camera, (3, H, W) in [0, 1]
+    (:func:`mepnet.state.warp_previous`), or None: a build's first step, a previous step
+    without a camera, or the model turned between the two."""
+    prev = ctx.previous
+    if prev is None or prev.camera is None or ctx.step.camera is None:
+        return None
+    w, _ = ctx.image_size
+    image = prev.image().astype(np.float32).transpose(2, 0, 1) / 255.0
+    return warp_previous(image, prev.camera, ctx.step.camera, w)
 
 
 def synthesize(

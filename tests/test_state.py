@@ -1,0 +1,95 @@
+"""mepnet.state: the previous step's picture as the base drawn in the manual's own style."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import generate_manuals
+from mepnet import _brickgeom as _bg
+from mepnet.manual import answers_of, iter_manual_dirs, load_manual
+from mepnet.manual.page import make_camera
+from mepnet.stage2.base import StepContext
+from mepnet.stage2.synthesis import step_change, step_picture
+from mepnet.state import CHANGE_THRESHOLD, same_view, warp_previous
+
+
+def _shape() -> _bg.Assembly:
+    asm = _bg.Assembly()
+    asm.add(_bg.Component.primitive("3001"), 0, (0, 3, 0), 4)
+    asm.add(_bg.Component.primitive("3003"), 1, (1, 6, 0), 1)
+    return asm
+
+
+def _picture(asm: _bg.Assembly, cam: dict, size: int = 256) -> np.ndarray:
+    return _bg.render(asm, make_camera(cam), size, size).rgb.transpose(2, 0, 1) / 255.0
+
+
+CAM = {"elevation": 30.0, "azimuth": 315.0, "roll": 0.0, "scale": 0.008, "translation": [0.0, 0.0]}
+
+
+def test_a_zoomed_and_panned_picture_is_the_previous_one_warped():
+    asm = _shape()
+    zoomed = dict(CAM, scale=0.011, translation=[0.12, -0.08])
+    before, after = _picture(asm, CAM), _picture(asm, zoomed)
+    warped = warp_previous(before, CAM, zoomed, 256)
+    assert warped is not None
+    fg_w, fg_a = warped.min(axis=0) < 0.9, after.min(axis=0) < 0.9
+    iou = (fg_w & fg_a).sum() / (fg_w | fg_a).sum()
+    assert iou > 0.97
+    assert np.median(np.abs(warped - after).max(axis=0)[fg_a]) < 0.05
+    # shifted the wrong way, it would not fit
+    wrong = warp_previous(before, CAM, dict(zoomed, translation=[-0.12, 0.08]), 256)
+    fg_x = wrong.min(axis=0) < 0.9  # type: ignore[union-attr]
+    assert (fg_x & fg_a).sum() / (fg_x | fg_a).sum() < 0.8
+
+
+def test_another_view_is_not_warped():
+    turned = dict(CAM, azimuth=45.0)
+    assert not same_view(CAM, turned)
+    assert warp_previous(_picture(_shape(), CAM), CAM, turned, 256) is None
+    assert same_view(CAM, dict(CAM, azimuth=315.1, scale=0.01))
+    assert same_view(dict(CAM, azimuth=359.95), dict(CAM, azimuth=0.05))
+
+
+@pytest.fixture(scope="module")
+def manual_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return next(iter(iter_manual_dirs(generate_manuals(tmp_path_factory.mktemp("st"), 1, 4242))))
+
+
+def test_a_manual_drawn_unlike_ours_changes_only_where_the_step_adds(manual_dir: Path):
+    """Both pictures darkened and tinted alike (another renderer's look): against our render
+    the whole base reads as changed; against the previous picture only the new parts do."""
+    m = load_manual(manual_dir)
+    comps = answers_of(m).components(m)
+    ans = m.answers.build(None)  # type: ignore[union-attr]
+    steps = m.main.steps
+    k = next(i for i in range(1, len(steps)) if same_view(steps[i - 1].camera, steps[i].camera))
+    base = _bg.Assembly()
+    for i in range(k):
+        for inst in ans.truth(i).placed():
+            base.add(comps[inst.component], inst.yaw, inst.t, inst.colour)
+    styled = {}
+    for j in (k - 1, k):  # a consistent other look: per channel gamma and a tint
+        img = steps[j].image().astype(np.float32) / 255.0
+        img = img ** np.array([2.6, 1.0, 0.4], np.float32) * np.array([0.95, 0.9, 1.0], np.float32)
+        path = manual_dir.parent / f"styled_{j}.png"
+        from PIL import Image
+
+        Image.fromarray((img * 255).round().astype(np.uint8)).save(path)
+        styled[j] = dataclasses.replace(steps[j], image_path=path)
+    ids = ans.truth(k).ids()
+    new_ids = {i for e in ans.truth(k).instances_of for i in e}
+    new = np.isin(ids, list(new_ids))
+    old = (ids >= 0) & ~new
+    ctx_render = StepContext(styled[k], base, comps, m.image_size)
+    ctx_prev = StepContext(styled[k], base, comps, m.image_size, styled[k - 1])
+    pic = step_picture(ctx_render)
+    c_render, _ = step_change(ctx_render, pic)
+    c_prev, _ = step_change(ctx_prev, pic)
+    changed_render = (c_render > CHANGE_THRESHOLD)[old].mean()
+    changed_prev = (c_prev > CHANGE_THRESHOLD)[old].mean()
+    assert changed_prev < 0.02 and changed_render > 4 * changed_prev
+    assert (c_prev > CHANGE_THRESHOLD)[new].mean() > 0.9
