@@ -409,6 +409,7 @@ def search_placements(
     work: int = 64,
     k: int = 8,
 ) -> list[tuple[float, int, _Int3, Camera]]: ...
+
 @final
 class FitPicture:
     def __new__(cls, rgb: npt.NDArray[np.uint8]) -> FitPicture: ...
