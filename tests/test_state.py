@@ -11,7 +11,7 @@ from conftest import generate_manuals
 from mepnet import _brickgeom as _bg
 from mepnet.manual import answers_of, iter_manual_dirs, load_manual
 from mepnet.manual.page import make_camera
-from mepnet.stage2.base import StepContext
+from mepnet.stage2.base import EarlierStep, StepContext
 from mepnet.stage2.synthesis import step_change, step_picture
 from mepnet.state import CHANGE_THRESHOLD, same_view, warp_previous
 
@@ -85,7 +85,9 @@ def test_a_manual_drawn_unlike_ours_changes_only_where_the_step_adds(manual_dir:
     new = np.isin(ids, list(new_ids))
     old = (ids >= 0) & ~new
     ctx_render = StepContext(styled[k], base, comps, m.image_size)
-    ctx_prev = StepContext(styled[k], base, comps, m.image_size, styled[k - 1])
+    ctx_prev = StepContext(
+        styled[k], base, comps, m.image_size, (EarlierStep(styled[k - 1], len(base)),)
+    )
     pic = step_picture(ctx_render)
     c_render, _ = step_change(ctx_render, pic)
     c_prev, _ = step_change(ctx_prev, pic)
@@ -93,3 +95,35 @@ def test_a_manual_drawn_unlike_ours_changes_only_where_the_step_adds(manual_dir:
     changed_prev = (c_prev > CHANGE_THRESHOLD)[old].mean()
     assert changed_prev < 0.02 and changed_render > 4 * changed_prev
     assert (c_prev > CHANGE_THRESHOLD)[new].mean() > 0.9
+
+
+def test_the_latest_picture_of_the_same_view_is_used_and_parts_added_since_are_not_trusted(
+    manual_dir: Path,
+):
+    from mepnet.stage2.synthesis import previous_picture
+
+    m = load_manual(manual_dir)
+    comps = answers_of(m).components(m)
+    ans = m.answers.build(None)  # type: ignore[union-attr]
+    steps = m.main.steps
+    k = max(i for i in range(2, len(steps)) if same_view(steps[i - 2].camera, steps[i].camera))
+    base = _bg.Assembly()
+    counts = []
+    for i in range(k):
+        for inst in ans.truth(i).placed():
+            base.add(comps[inst.component], inst.yaw, inst.t, inst.colour)
+        counts.append(len(base))
+    turned = dataclasses.replace(
+        steps[k - 1], camera=dict(steps[k].camera, azimuth=steps[k].camera["azimuth"] + 90)
+    )
+    earlier = (EarlierStep(steps[k - 2], counts[k - 2]), EarlierStep(turned, counts[k - 1]))
+    got = previous_picture(StepContext(steps[k], base, comps, m.image_size, earlier))
+    assert got is not None
+    warped, trusted = got
+    ids = _bg.render(base, make_camera(steps[k].camera), 256, 256, line_px=0.0).ids
+    assert np.array_equal(trusted, ids < counts[k - 2])
+    assert (~trusted).any() == (counts[k - 1] > counts[k - 2])
+    # only a turned earlier view: nothing to compare with
+    only_turned = StepContext(steps[k], base, comps, m.image_size, earlier[1:])
+    assert previous_picture(only_turned) is None
+    assert previous_picture(StepContext(steps[k], base, comps, m.image_size)) is None

@@ -40,8 +40,9 @@ from mepnet.frames import (
 from mepnet.geom import BrickGeomError, submodule_from_placed
 from mepnet.ldraw.io import LDrawFile, LDrawModel, LDrawRef, ldraw_placement
 from mepnet.ldraw.io import write as write_ldraw
-from mepnet.manual import Build, ComponentRef, Manual, Step, StepTruth
+from mepnet.manual import Build, ComponentRef, Manual, StepTruth
 from mepnet.stage2 import Prediction, Predictor, StepContext, predict_step
+from mepnet.stage2.base import EarlierStep
 
 PLAN_SCHEMA = "mepnet.plan"
 
@@ -130,7 +131,7 @@ def run_build(
     run = BuildRun(key, build)
     base = _bg.Assembly()
     cameras = BuildCameras(manual.image_size)
-    previous: Step | None = None  # the previous page step, with the camera it was predicted with
+    earlier: list[EarlierStep] = []  # the page steps so far, with the cameras predicted with
     for k, step in enumerate(build.steps):
         truth = full_truth = answers.truth(k) if answers is not None else None
         page_step, kept = _missing_entries(components, step)
@@ -146,9 +147,9 @@ def run_build(
             page: Any,
             truth: StepTruth | None = truth,
             where: str = step.where,
-            previous: Step | None = previous,
+            earlier: tuple[EarlierStep, ...] = tuple(earlier),
         ) -> tuple[list[Prediction], float]:
-            ctx = StepContext(page, base.copy(), components, manual.image_size, previous)
+            ctx = StepContext(page, base.copy(), components, manual.image_size, earlier)
             try:
                 return predict_step(predictor, ctx, truth)
             except (MepnetError, BrickGeomError) as err:
@@ -164,9 +165,6 @@ def run_build(
             preds, seconds, camera = _estimated_camera_step(
                 cameras, predict, page_step, base, components, teacher_forced
             )
-        previous = dataclasses.replace(
-            step, camera=None if camera.camera is None else camera.step_camera()
-        )
         # back to the page's entry numbering, and a failure for every entry left out
         preds = [dataclasses.replace(p, entry=kept[p.entry]) for p in preds]
         for e, c in enumerate(step.components):
@@ -191,6 +189,8 @@ def run_build(
         if teacher_forced:
             for inst in full_truth.placed():  # type: ignore[union-attr]
                 base.add(components[inst.component], inst.yaw, inst.t, inst.colour)
+        seen = None if camera.camera is None else camera.step_camera()
+        earlier.append(EarlierStep(dataclasses.replace(step, camera=seen), len(base)))
         run.steps.append(
             StepRun(k + 1, step.image_path.name, preds, placed, seconds, full_truth, camera)
         )

@@ -30,10 +30,11 @@ class StepContext:
     base: _bg.Assembly
     components: dict[ComponentRef, _bg.Component]
     image_size: tuple[int, int]
-    #: The build's previous page step, its ``camera`` the one it was predicted with (given or
-    #: estimated; None when there was none): its picture shows the base shape as the manual's
-    #: own renderer draws it. None on a build's first step.
-    previous: Step | None = None
+    #: The build's earlier page steps, oldest first, each with the camera it was predicted with
+    #: (given or estimated; None when there was none) and how many of the base's instances
+    #: (in the order they were added) existed after it: their pictures show the base shape, or
+    #: a part of it, as the manual's own renderer draws it.
+    earlier: tuple[EarlierStep, ...] = ()
 
     @property
     def camera(self) -> _bg.Camera:
@@ -43,6 +44,15 @@ class StepContext:
     def colour(self, entry: int) -> int:
         """The colour the callout gives entry ``entry`` of the step."""
         return self.step.components[entry].colour
+
+
+@dataclass(frozen=True)
+class EarlierStep:
+    """An earlier step of the build (:attr:`StepContext.earlier`)."""
+
+    step: Step
+    #: The base's first ``instances`` instances had been added after this step.
+    instances: int
 
 
 @dataclass

@@ -36,6 +36,7 @@ from mepnet.state import (
     change_map,
     fit_tone,
     previous_change,
+    same_view,
     state_render,
     warp_previous,
 )
@@ -129,20 +130,35 @@ def step_change(ctx: StepContext, picture: np.ndarray) -> tuple[np.ndarray, np.n
     if before is not None:
         # a pixel the manual's own picture of the base explains has not changed, however
         # unlike ours its renderer draws
-        np.minimum(change, previous_change(image, before), out=change)
+        picture_before, trusted = before
+        np.minimum(
+            change, np.where(trusted, previous_change(image, picture_before), 1.0), out=change
+        )
     return tolerate_lines(change, outline), tone
 
 
-def previous_picture(ctx: StepContext) -> np.ndarray | None:
-    """The previous step's picture seen with this step's camera, (3, H, W) in [0, 1]
-    (:func:`mepnet.state.warp_previous`), or None: a build's first step, a previous step
-    without a camera, or the model turned between the two."""
-    prev = ctx.previous
-    if prev is None or prev.camera is None or ctx.step.camera is None:
+def previous_picture(ctx: StepContext) -> tuple[np.ndarray, np.ndarray] | None:
+    """The latest earlier picture of the build drawn from this step's view (zoom and pan
+    aside) seen with this step's camera, (3, H, W) in [0, 1] (:func:`mepnet.state.warp_previous`),
+    and where it shows the base as it is now, (H, W) bool: not where parts added since then
+    show. None on a build's first step, and when no earlier step with a camera shares the view."""
+    cam = ctx.step.camera
+    if cam is None:
         return None
     w, _ = ctx.image_size
-    image = prev.image().astype(np.float32).transpose(2, 0, 1) / 255.0
-    return warp_previous(image, prev.camera, ctx.step.camera, w)
+    for prev in reversed(ctx.earlier):
+        if prev.step.camera is None or not same_view(prev.step.camera, cam):
+            continue
+        image = prev.step.image().astype(np.float32).transpose(2, 0, 1) / 255.0
+        warped = warp_previous(image, prev.step.camera, cam, w)
+        if warped is None:  # pragma: no cover - same_view was checked
+            return None
+        trusted = np.ones((w, w), bool)
+        if prev.instances < len(ctx.base):
+            ids = _bg.render(ctx.base, ctx.camera, w, w, line_px=0.0).ids
+            trusted = ids < prev.instances  # the page (-1) and what existed then
+        return warped, trusted
+    return None
 
 
 def synthesize(
