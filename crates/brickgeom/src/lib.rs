@@ -18,6 +18,7 @@ pub mod metrics;
 mod parts;
 pub mod raster;
 pub mod realmodel;
+pub mod render_style;
 pub mod scene;
 mod shapes;
 pub mod stage2;

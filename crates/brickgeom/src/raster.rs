@@ -1,6 +1,8 @@
 //! brickgeom's CPU triangle rasterizer (DESIGN §4): in one pass, a manual-style RGB image (flat
 //! part colours, soft shading, dark outlines at depth, crease and part boundaries, white
 //! background), depth, per-pixel instance ids, and per-instance visible / unoccluded pixel counts.
+//! How the RGB image is drawn is `RenderOptions::style` (`render_style.rs`); depth, ids and counts
+//! do not depend on it.
 //!
 //! Pixel conventions are the camera's (`camera.rs`): samples at pixel centres. With
 //! supersampling factor `ss` (odd: 1 or 3) the image is rasterized at `ss` times the size; colour
@@ -12,6 +14,7 @@ use crate::camera::Camera;
 use crate::error::{BrickGeomError, Result};
 use crate::lattice::Pose;
 use crate::mesh::Mesh;
+use crate::render_style::{LineMode, Mark, RenderStyle};
 
 /// One thing to draw: a mesh (LDU, y up) placed by a lattice pose, its colour, and the id it
 /// reports in the id image. Several items may share an id (the bricks of one submodule); items of
@@ -57,6 +60,8 @@ pub struct RenderOptions {
     pub plane_edge: f32,
     /// Cosine of the largest angle between neighbouring face normals that is not a crease.
     pub crease_cos: f32,
+    /// Lighting, shading, lines, palette and emphasis (default: the renderer's own look).
+    pub style: RenderStyle,
 }
 
 impl RenderOptions {
@@ -70,6 +75,7 @@ impl RenderOptions {
             background: [255, 255, 255],
             plane_edge: 1.0,
             crease_cos: 0.8,
+            style: RenderStyle::default(),
         }
     }
 
@@ -93,7 +99,19 @@ impl RenderOptions {
                 self.line_px
             )));
         }
-        Ok(())
+        if !(self.plane_edge >= 0.0 && self.plane_edge <= 1000.0) {
+            return Err(BrickGeomError::InvalidArgument(format!(
+                "plane_edge must be within [0, 1000] LDU, got {}",
+                self.plane_edge
+            )));
+        }
+        if !(self.crease_cos >= -1.0 && self.crease_cos <= 1.0) {
+            return Err(BrickGeomError::InvalidArgument(format!(
+                "crease_cos must be within [-1, 1], got {}",
+                self.crease_cos
+            )));
+        }
+        self.style.validate()
     }
 }
 
@@ -141,6 +159,18 @@ const BAND: usize = 16;
 
 /// Render items with a camera.
 pub fn render(items: &[RenderItem], camera: &Camera, opts: &RenderOptions) -> Result<Rendered> {
+    render_marked(items, camera, opts, &[])
+}
+
+/// Render items with a camera, each id emphasised by its mark (`marks[id]`; ids beyond the end
+/// are plain): how the marks show is up to `opts.style` (a highlight outline for new ones, a fade
+/// for old ones; nothing with the default style).
+pub fn render_marked(
+    items: &[RenderItem],
+    camera: &Camera,
+    opts: &RenderOptions,
+    marks: &[Mark],
+) -> Result<Rendered> {
     camera.validate()?;
     opts.validate()?;
     if items.windows(2).any(|p| p[1].id < p[0].id) {
@@ -154,17 +184,20 @@ pub fn render(items: &[RenderItem], camera: &Camera, opts: &RenderOptions) -> Re
     let m = camera.pixel_matrix(w as u32, h as u32);
     let rot = camera.rotation();
     let view = [rot[(2, 0)], rot[(2, 1)], rot[(2, 2)]];
-    // Light from the upper left of the viewer, slightly from the front.
+    let style = &opts.style;
+    // The style's light is in view space; faces are shaded in world space.
     let light = {
-        let l = rot.transpose() * nalgebra::Vector3::new(-0.45, 0.75, -0.5);
+        let l = rot.transpose() * nalgebra::Vector3::from(style.light);
         let l = l.normalize();
         [l[0] as f32, l[1] as f32, l[2] as f32]
     };
+    let eye = view.map(|v| -v as f32);
 
     // Triangle setup, in parallel over items (hundreds of thousands of triangles for big
     // scenes); per item: screen triangles and faces (unit normal facing the camera, plane offset
-    // n . p in LDU, shade factor). Concatenated in item order, so the result is deterministic.
-    type Face = ([f32; 3], f32, f32);
+    // n . p in LDU, shade factor, white highlight). Concatenated in item order, so the result is
+    // deterministic.
+    type Face = ([f32; 3], f32, f32, f32);
     let per_item: Vec<Result<(Vec<ScreenTri>, Vec<Face>)>> = items
         .par_iter()
         .enumerate()
@@ -215,10 +248,9 @@ pub fn render(items: &[RenderItem], camera: &Camera, opts: &RenderOptions) -> Re
                 if towards_camera < 0.0 {
                     n = [-n[0], -n[1], -n[2]];
                 }
-                let diffuse = (n[0] * light[0] + n[1] * light[1] + n[2] * light[2]).max(0.0);
-                let shade = 0.62 + 0.38 * diffuse;
+                let (shade, spec) = style.face_shade(n, light, eye);
                 let offset = n[0] * a[0] + n[1] * a[1] + n[2] * a[2];
-                faces.push((n, offset, shade));
+                faces.push((n, offset, shade, spec));
                 tris.push(ScreenTri {
                     p: idx.map(|i| proj[i]),
                     item: item as u32,
@@ -320,46 +352,113 @@ pub fn render(items: &[RenderItem], camera: &Camera, opts: &RenderOptions) -> Re
         }
     }
 
-    // Outlines at the sample resolution: a sample is on an edge when its right or lower
-    // neighbour shows another item, a crease, or a parallel face at another level; then the
-    // edge is thickened. Comparing planes rather than depths keeps faces seen at a grazing angle
-    // (whose depth changes fast from sample to sample) free of false outlines.
-    let is_edge = |a: usize, b: usize| -> bool {
-        if id_at(a) != id_at(b) {
-            return true;
+    // Outlines at the sample resolution: a sample is on an edge when a neighbour shows another
+    // item, a crease, or a parallel face at another level; then the edge is thickened. Comparing
+    // planes rather than depths keeps faces seen at a grazing angle (whose depth changes fast
+    // from sample to sample) free of false outlines. Kinds: 0 none, 1 a crease or step inside
+    // a part, 2 between two parts, 3 between a part and the page.
+    let edge_kind = |a: usize, b: usize| -> u8 {
+        let (ia, ib) = (id_at(a), id_at(b));
+        if ia != ib {
+            return if ia < 0 || ib < 0 { 3 } else { 2 };
         }
         if item[a] < 0 || face[a] == face[b] {
-            return false;
+            return 0;
         }
         let (fa, fb) = (&faces[face[a] as usize], &faces[face[b] as usize]);
         let dot = fa.0[0] * fb.0[0] + fa.0[1] * fb.0[1] + fa.0[2] * fb.0[2];
-        dot < opts.crease_cos || (dot > 0.999 && (fa.1 - fb.1).abs() > opts.plane_edge)
+        u8::from(dot < opts.crease_cos || (dot > 0.999 && (fa.1 - fb.1).abs() > opts.plane_edge))
+    };
+    let least_kind = match style.lines {
+        LineMode::All => 1,
+        LineMode::Parts => 2,
+        LineMode::Silhouette => 3,
+        LineMode::None => u8::MAX,
+    };
+    // With front lines, the sample of a pair that draws the line is the nearer one (ties: the
+    // left or upper one); the page is infinitely far.
+    let owns = |a: usize, b: usize| depth[a] < depth[b] || (depth[a] == depth[b] && a < b);
+    let front_edge = |i: usize, x: usize, y: usize, least: u8| -> bool {
+        let hit = |j: usize| edge_kind(i, j) >= least && owns(i, j);
+        (x + 1 < w && hit(i + 1))
+            || (y + 1 < h && hit(i + w))
+            || (x > 0 && hit(i - 1))
+            || (y > 0 && hit(i - w))
     };
     let line = (opts.line_px * ss as f32).round() as usize;
     let mut edge = vec![false; w * h];
-    if line > 0 {
+    if line > 0 && style.lines != LineMode::None {
         edge.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
             for (x, e) in row.iter_mut().enumerate() {
                 let i = y * w + x;
-                *e = (x + 1 < w && is_edge(i, i + 1)) || (y + 1 < h && is_edge(i, i + w));
+                *e = if style.front_lines {
+                    front_edge(i, x, y, least_kind)
+                } else {
+                    (x + 1 < w && edge_kind(i, i + 1) >= least_kind)
+                        || (y + 1 < h && edge_kind(i, i + w) >= least_kind)
+                };
             }
         });
         if line > 1 {
             edge = dilate(&edge, w, h, line - 1);
         }
     }
+    // Per item: its colour after the palette change, and its mark.
+    let colours: Vec<[f32; 3]> = items
+        .iter()
+        .map(|it| style.part_colour(it.colour))
+        .collect();
+    let item_marks: Vec<Mark> = items
+        .iter()
+        .map(|it| marks.get(it.id as usize).copied().unwrap_or_default())
+        .collect();
+    // The highlight: the outline (against other parts and the page) that new items own.
+    let highlight = match style.highlight {
+        Some(c) if item_marks.contains(&Mark::New) => {
+            let mut hl = vec![false; w * h];
+            hl.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
+                for (x, e) in row.iter_mut().enumerate() {
+                    let i = y * w + x;
+                    *e = item[i] >= 0
+                        && item_marks[item[i] as usize] == Mark::New
+                        && front_edge(i, x, y, 2);
+                }
+            });
+            // a band about `highlight_px` wide, centred on the outline
+            let radius = ((style.highlight_px * ss as f32 - 1.0) / 2.0)
+                .round()
+                .max(0.0) as usize;
+            if radius > 0 {
+                hl = dilate(&hl, w, h, radius);
+            }
+            Some((hl, c.map(|x| x as f32)))
+        }
+        _ => None,
+    };
 
     // Shade samples, then box-filter to the output size.
     let shade_sample = |i: usize| -> [f32; 3] {
+        if let Some((hl, c)) = &highlight {
+            if hl[i] {
+                return *c;
+            }
+        }
         if item[i] < 0 {
             return opts.background.map(|c| c as f32);
         }
-        let base = items[item[i] as usize].colour.map(|c| c as f32);
-        if edge[i] {
-            return outline_colour(base);
-        }
-        let s = faces[face[i] as usize].2;
-        base.map(|c| (c * s).min(255.0))
+        let k = item[i] as usize;
+        let base = colours[k];
+        let c = if edge[i] {
+            style.line_colour.on(base)
+        } else {
+            let (_, _, s, spec) = faces[face[i] as usize];
+            if spec > 0.0 {
+                base.map(|c| (c * s + 255.0 * spec).min(255.0))
+            } else {
+                base.map(|c| (c * s).min(255.0))
+            }
+        };
+        style.marked(c, item_marks[k])
     };
     let (ow, oh) = (opts.width as usize, opts.height as usize);
     let mut rgb = vec![0u8; ow * oh * 3];
@@ -398,16 +497,6 @@ pub fn render(items: &[RenderItem], camera: &Camera, opts: &RenderOptions) -> Re
         visible_samples: visible,
         total_samples: total,
     })
-}
-
-fn outline_colour(base: [f32; 3]) -> [f32; 3] {
-    let luma = 0.299 * base[0] + 0.587 * base[1] + 0.114 * base[2];
-    if luma < 60.0 {
-        // Dark parts get lighter lines, as printed manuals draw them.
-        [95.0, 95.0, 95.0]
-    } else {
-        base.map(|c| c * 0.18)
-    }
 }
 
 /// Square dilation of a boolean image by `r` samples.

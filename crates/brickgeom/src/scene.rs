@@ -10,7 +10,8 @@ use crate::colours::ColourTable;
 use crate::error::Result;
 use crate::library::part;
 use crate::mesh::Mesh;
-use crate::raster::{render, RenderItem, RenderOptions, Rendered};
+use crate::raster::{render_marked, RenderItem, RenderOptions, Rendered};
+use crate::render_style::Mark;
 
 /// Where part meshes come from: the package's own meshes, or real LDraw geometry.
 #[derive(Debug, Default)]
@@ -70,6 +71,19 @@ pub fn render_assembly(
     colours: &ColourTable,
     source: &MeshSource,
 ) -> Result<Rendered> {
+    render_assembly_marked(asm, camera, opts, colours, source, &[])
+}
+
+/// [`render_assembly`] with each instance emphasised by its mark (`marks[instance id]`, see
+/// [`render_marked`]).
+pub fn render_assembly_marked(
+    asm: &Assembly,
+    camera: &Camera,
+    opts: &RenderOptions,
+    colours: &ColourTable,
+    source: &MeshSource,
+    marks: &[Mark],
+) -> Result<Rendered> {
     let mut meshes = Vec::new();
     let mut placed = Vec::new();
     for (id, inst) in asm.instances() {
@@ -93,5 +107,5 @@ pub fn render_assembly(
             id,
         })
         .collect();
-    render(&items, camera, opts)
+    render_marked(&items, camera, opts, marks)
 }

@@ -21,7 +21,7 @@ pub use build::{
 };
 pub use config::SynthConfig;
 pub use rng::Rng;
-pub use views::{project_keypoints, render_build, InstanceView, StepImage};
+pub use views::{project_keypoints, render_build, render_build_with, InstanceView, StepImage};
 
 use crate::error::{BrickGeomError, Result};
 

@@ -8,6 +8,7 @@ use crate::component::{Component, MAIN_COLOUR};
 use crate::error::Result;
 use crate::lattice::Pose;
 use crate::raster::RenderOptions;
+use crate::render_style::Mark;
 use crate::scene::MeshSource;
 
 use super::build::Build;
@@ -75,7 +76,8 @@ pub struct StepImage {
     pub instances: Vec<InstanceView>,
 }
 
-/// Render every step of a build (state after the step) with its camera.
+/// Render every step of a build (state after the step) with its camera, as the generator's
+/// settings say (size, anti-aliasing; the renderer's own style).
 pub fn render_build(
     build: &Build,
     cfg: &SynthConfig,
@@ -86,13 +88,52 @@ pub fn render_build(
         supersample: cfg.supersample,
         ..RenderOptions::new(cfg.image_size, cfg.image_size)
     };
+    render_build_with(build, &opts, &opts, source, colours)
+}
+
+/// Render every step of a build: the id images and annotations with `opts` (size and
+/// anti-aliasing), the pictures with `look` (the same size; its own anti-aliasing, lines and
+/// style). In each step the instances it adds are marked new and those of earlier steps old, for
+/// the style's highlight and fade. A style changes colours only, so the id images and
+/// annotations are those `opts` alone gives: one render per step when both sample alike, two
+/// when `look` anti-aliases differently.
+pub fn render_build_with(
+    build: &Build,
+    opts: &RenderOptions,
+    look: &RenderOptions,
+    source: &MeshSource,
+    colours: &ColourTable,
+) -> Result<Vec<StepImage>> {
+    opts.validate()?;
+    look.validate()?;
+    if (look.width, look.height) != (opts.width, opts.height) {
+        return Err(crate::error::BrickGeomError::InvalidArgument(format!(
+            "pictures ({}x{}) and id images ({}x{}) must have one size",
+            look.width, look.height, opts.width, opts.height
+        )));
+    }
     let mut out = Vec::with_capacity(build.steps.len());
     let mut added = vec![false; build.instances.len()];
     for step in &build.steps {
+        let mut marks: Vec<Mark> = added
+            .iter()
+            .map(|&a| if a { Mark::Old } else { Mark::Plain })
+            .collect();
         for &i in &step.instances {
             added[i] = true;
+            marks[i] = Mark::New;
         }
-        let r = render_ids_aligned(build, &added, &step.camera, &opts, colours, source)?;
+        let (r, rgb) = if look.supersample == opts.supersample {
+            let mut r =
+                render_ids_aligned(build, &added, &marks, &step.camera, look, colours, source)?;
+            let rgb = std::mem::take(&mut r.rgb);
+            (r, rgb)
+        } else {
+            let r = render_ids_aligned(build, &added, &[], &step.camera, opts, colours, source)?;
+            let pic =
+                render_ids_aligned(build, &added, &marks, &step.camera, look, colours, source)?;
+            (r, pic.rgb)
+        };
         let (w, h) = (r.width, r.height);
         let frac = r.visible_fraction();
         let mut views = Vec::with_capacity(step.instances.len());
@@ -117,7 +158,7 @@ pub fn render_build(
             });
         }
         out.push(StepImage {
-            rgb: r.rgb,
+            rgb,
             ids: r.ids,
             width: w,
             height: h,
@@ -131,6 +172,7 @@ pub fn render_build(
 fn render_ids_aligned(
     build: &Build,
     added: &[bool],
+    marks: &[Mark],
     camera: &Camera,
     opts: &RenderOptions,
     colours: &ColourTable,
@@ -162,7 +204,7 @@ fn render_ids_aligned(
             id,
         })
         .collect();
-    crate::raster::render(&items, camera, opts)
+    crate::raster::render_marked(&items, camera, opts, marks)
 }
 
 /// The keypoint candidates of a component placed at a pose, in pixels.
