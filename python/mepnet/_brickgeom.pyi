@@ -141,6 +141,40 @@ class Rendering:
     @property
     def total_pixels(self) -> npt.NDArray[np.uint64]: ...
 
+_Rgb = Sequence[int]
+
+@final
+class RenderStyle:
+    def __new__(
+        cls,
+        *,
+        light: Sequence[float] | None = None,
+        ambient: float = 0.62,
+        diffuse: float = 0.38,
+        shading: Literal["lambert", "flat", "bands", "specular"] = "lambert",
+        specular: float = 0.0,
+        shininess: float = 16.0,
+        lines: Literal["all", "parts", "silhouette", "none"] = "all",
+        line_colour: Literal["auto", "part"] | _Rgb | None = None,
+        line_darken: float = 0.55,
+        front_lines: bool = False,
+        line_px: float | None = None,
+        saturation: float = 1.0,
+        lighten: float = 0.0,
+        highlight: _Rgb | None = None,
+        highlight_px: float = 2.0,
+        fade: float = 0.0,
+        background: _Rgb | None = None,
+        supersample: int | None = None,
+        plane_edge: float = 1.0,
+        crease_cos: float = 0.8,
+    ) -> RenderStyle: ...
+    @staticmethod
+    def from_dict(settings: dict[str, Any]) -> RenderStyle: ...
+    def to_dict(self) -> dict[str, Any]: ...
+    @property
+    def is_default(self) -> bool: ...
+
 def render(
     assembly: Assembly,
     camera: Camera,
@@ -149,6 +183,9 @@ def render(
     supersample: int = 1,
     line_px: float | None = None,
     ldraw_dir: str | None = None,
+    style: RenderStyle | dict[str, Any] | None = None,
+    new_ids: Sequence[int] | None = None,
+    old_ids: Sequence[int] | None = None,
 ) -> Rendering: ...
 
 # LDraw files (re-exported by mepnet.ldraw)
@@ -304,7 +341,10 @@ def load_part_mesh(
 
 # Synthetic manuals (wrapped by mepnet.synth / mepnet.manual / mepnet.ldraw.convert)
 def synth_manual(
-    seed: int, config: dict[str, Any] | None = None, ldraw_dir: str | None = None
+    seed: int,
+    config: dict[str, Any] | None = None,
+    ldraw_dir: str | None = None,
+    style: RenderStyle | dict[str, Any] | None = None,
 ) -> dict[str, Any]: ...
 def synth_default_config() -> dict[str, Any]: ...
 def render_plan(
@@ -314,6 +354,7 @@ def render_plan(
     image_size: int,
     supersample: int = 1,
     ldraw_dir: str | None = None,
+    style: RenderStyle | dict[str, Any] | None = None,
 ) -> dict[str, Any]: ...
 
 # Evaluation metrics (wrapped by mepnet.metrics)

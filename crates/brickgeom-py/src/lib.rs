@@ -15,6 +15,7 @@ mod ldraw;
 mod metrics;
 mod render;
 mod stage2;
+mod style;
 mod synth;
 
 use pyo3::prelude::*;
@@ -28,6 +29,7 @@ fn _brickgeom(m: &Bound<'_, PyModule>) -> PyResult<()> {
     metrics::register(m)?;
     render::register(m)?;
     stage2::register(m)?;
+    style::register(m)?;
     synth::register(m)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     Ok(())

@@ -7,7 +7,8 @@ use std::sync::{Arc, Mutex, OnceLock};
 use brickgeom::camera::Camera;
 use brickgeom::colours::ColourTable;
 use brickgeom::raster::{RenderOptions, Rendered};
-use brickgeom::scene::{render_assembly, MeshSource};
+use brickgeom::render_style::Mark;
+use brickgeom::scene::{render_assembly_marked, MeshSource};
 use ndarray::{Array1, Array2, Array3};
 use numpy::{
     IntoPyArray, PyArray, PyArray1, PyArray2, PyArray3, PyReadonlyArray2, PyUntypedArrayMethods,
@@ -17,6 +18,7 @@ use pyo3::prelude::*;
 
 use crate::errors::{detach_core, IntoPyResult};
 use crate::geom::PyAssembly;
+use crate::style::PyRenderStyle;
 
 /// A weak-perspective camera (angles in degrees, scale in NDC per LDU, translation in NDC).
 #[pyclass(name = "Camera", module = "mepnet._brickgeom", frozen)]
@@ -273,9 +275,35 @@ impl PyRendering {
     }
 }
 
-/// Render an assembly (see `Rendering` for what comes back).
+/// Per-instance marks from the ids drawn as new and as old (new wins where both list an id).
+fn marks_of(new_ids: &[u32], old_ids: &[u32]) -> PyResult<Vec<Mark>> {
+    // ids are instance ids of one assembly; far beyond any real one is a caller's mistake
+    const MAX_ID: u32 = 1 << 24;
+    let top = new_ids.iter().chain(old_ids).copied().max();
+    let Some(top) = top else {
+        return Ok(Vec::new());
+    };
+    if top >= MAX_ID {
+        return Err(PyValueError::new_err(format!(
+            "instance id {top} in new_ids/old_ids is beyond any assembly's"
+        )));
+    }
+    let mut marks = vec![Mark::Plain; top as usize + 1];
+    for &i in old_ids {
+        marks[i as usize] = Mark::Old;
+    }
+    for &i in new_ids {
+        marks[i as usize] = Mark::New;
+    }
+    Ok(marks)
+}
+
+/// Render an assembly (see `Rendering` for what comes back). `style`: a `RenderStyle` (or its
+/// dict); the settings it fixes (line width, anti-aliasing) replace `line_px` and
+/// `supersample`. `new_ids` are drawn as added in this step (the style's highlight), `old_ids`
+/// as added before (the style's fade); ids and depth never depend on the style.
 #[pyfunction]
-#[pyo3(signature = (assembly, camera, width, height, supersample=1, line_px=None, ldraw_dir=None))]
+#[pyo3(signature = (assembly, camera, width, height, supersample=1, line_px=None, ldraw_dir=None, style=None, new_ids=None, old_ids=None))]
 #[allow(clippy::too_many_arguments)]
 fn render(
     py: Python<'_>,
@@ -286,17 +314,27 @@ fn render(
     supersample: u32,
     line_px: Option<f32>,
     ldraw_dir: Option<PathBuf>,
+    style: Option<&Bound<'_, PyAny>>,
+    new_ids: Option<Vec<u32>>,
+    old_ids: Option<Vec<u32>>,
 ) -> PyResult<PyRendering> {
     let mut opts = RenderOptions::new(width, height);
     opts.supersample = supersample;
     if let Some(l) = line_px {
         opts.line_px = l;
     }
+    PyRenderStyle::from_arg(style)?.apply(&mut opts);
+    let marks = marks_of(
+        new_ids.as_deref().unwrap_or(&[]),
+        old_ids.as_deref().unwrap_or(&[]),
+    )?;
     let colours = colour_table(ldraw_dir.as_ref())?;
     let src = source(ldraw_dir);
     let asm = &assembly.inner;
     let cam = camera.inner;
-    let r = detach_core(py, || render_assembly(asm, &cam, &opts, &colours, &src))?;
+    let r = detach_core(py, || {
+        render_assembly_marked(asm, &cam, &opts, &colours, &src, &marks)
+    })?;
     PyRendering::new(py, r)
 }
 

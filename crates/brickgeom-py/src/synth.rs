@@ -4,8 +4,9 @@ use std::path::PathBuf;
 
 use brickgeom::camera::Camera;
 use brickgeom::colours::ColourTable;
+use brickgeom::raster::RenderOptions;
 use brickgeom::scene::MeshSource;
-use brickgeom::synth::{generate, render_build, Build, ComponentRef, StepImage, SynthConfig};
+use brickgeom::synth::{generate, render_build_with, Build, ComponentRef, StepImage, SynthConfig};
 use brickgeom::{library, BrickGeomError};
 use ndarray::{Array2, Array3};
 use numpy::IntoPyArray;
@@ -14,6 +15,19 @@ use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
 
 use crate::errors::{detach_core, IntoPyResult};
+use crate::style::PyRenderStyle;
+
+/// The options of the id images and annotations (the generator's size and anti-aliasing) and
+/// of the step pictures (those, then what the style fixes).
+fn step_options(cfg: &SynthConfig, style: &PyRenderStyle) -> (RenderOptions, RenderOptions) {
+    let opts = RenderOptions {
+        supersample: cfg.supersample,
+        ..RenderOptions::new(cfg.image_size, cfg.image_size)
+    };
+    let mut look = opts;
+    style.apply(&mut look);
+    (opts, look)
+}
 
 /// Camera parameters as a dict (the `manual.json` form).
 pub fn camera_dict<'py>(py: Python<'py>, c: &Camera) -> PyResult<Bound<'py, PyDict>> {
@@ -154,15 +168,19 @@ fn build_dict<'py>(
 /// Generate and render one manual: a dict {seed, config, main, submodules}. `main` and each
 /// submodule's `build` hold `instances` (component, yaw, t, colour) and `steps` (instance
 /// indices, attach kinds, camera, `rgb`/`ids` images, per-instance keypoints, box, visibility).
+/// `style` (a `RenderStyle` or its dict) changes how the step images are drawn, never what the
+/// manual holds nor its id images; each step's new instances are marked new, earlier ones old.
 #[pyfunction]
-#[pyo3(signature = (seed, config=None, ldraw_dir=None))]
+#[pyo3(signature = (seed, config=None, ldraw_dir=None, style=None))]
 fn synth_manual<'py>(
     py: Python<'py>,
     seed: u64,
     config: Option<&Bound<'py, PyDict>>,
     ldraw_dir: Option<PathBuf>,
+    style: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let cfg = config_from(config)?;
+    let (opts, look) = step_options(&cfg, &PyRenderStyle::from_arg(style)?);
     let (manual, main_imgs, sub_imgs) = detach_core(py, || {
         let src = match &ldraw_dir {
             None => MeshSource::builtin(),
@@ -170,11 +188,11 @@ fn synth_manual<'py>(
         };
         let colours = ColourTable::builtin();
         let m = generate(&cfg, seed)?;
-        let main = render_build(&m.main, &cfg, &src, &colours)?;
+        let main = render_build_with(&m.main, &opts, &look, &src, &colours)?;
         let subs = m
             .submodules
             .iter()
-            .map(|s| render_build(&s.build, &cfg, &src, &colours))
+            .map(|s| render_build_with(&s.build, &opts, &look, &src, &colours))
             .collect::<Result<Vec<_>, _>>()?;
         Ok((m, main, subs))
     })?;
@@ -217,10 +235,11 @@ pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
 /// are rendered. `instances`: `(component, ref, yaw, (x, y, z), colour)` with `ref` a part id
 /// or a submodule index; `steps`: instance indices per step; `cameras`: one per step. Returns
 /// the build dict of `synth_manual`, with `attach` computed against each step's base shape
-/// ("unsupported" where a part is not connected or collides).
+/// ("unsupported" where a part is not connected or collides). `style` draws the pictures as
+/// in `synth_manual`.
 #[pyfunction]
-#[pyo3(signature = (instances, steps, cameras, image_size, supersample=1, ldraw_dir=None))]
-#[allow(clippy::type_complexity)]
+#[pyo3(signature = (instances, steps, cameras, image_size, supersample=1, ldraw_dir=None, style=None))]
+#[allow(clippy::type_complexity, clippy::too_many_arguments)]
 fn render_plan<'py>(
     py: Python<'py>,
     instances: Vec<(
@@ -235,6 +254,7 @@ fn render_plan<'py>(
     image_size: u32,
     supersample: u32,
     ldraw_dir: Option<PathBuf>,
+    style: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<Bound<'py, PyDict>> {
     use brickgeom::synth::{PlacedInstance, SynthStep};
     use brickgeom::{AttachKind, Pose};
@@ -290,12 +310,13 @@ fn render_plan<'py>(
         supersample,
         ..SynthConfig::default()
     };
+    let (opts, look) = step_options(&cfg, &PyRenderStyle::from_arg(style)?);
     let (images, attach) = detach_core(py, || {
         let src = match &ldraw_dir {
             None => MeshSource::builtin(),
             Some(r) => MeshSource::ldraw(r),
         };
-        let images = render_build(&build, &cfg, &src, &ColourTable::builtin())?;
+        let images = render_build_with(&build, &opts, &look, &src, &ColourTable::builtin())?;
         let attach: Vec<Vec<&str>> = build
             .step_checks()
             .into_iter()
