@@ -1,8 +1,11 @@
 """Synthetic manuals on the command line.
 
-    python -m mepnet.synth --out DIR --manuals N --seed S [--workers W] [--size PX]
+    python -m mepnet.synth --out DIR --manuals N --seed S [--workers W] [--size PX] [--styles]
 
 writes N manual folders ``DIR/manual_<seed>`` for seeds S .. S+N-1 (see ``docs/dataset.md``).
+With ``--styles`` every manual is drawn in its own style (``mepnet.styles``, ``docs/styles.md``),
+recorded in ``manual.json`` under ``source.style``; the manual, its answers and instance maps
+are those of the same seed without it.
 The same seed gives byte-identical files whatever the number of workers, so shards made on
 different machines with disjoint seed ranges never collide. Each manual is written to a
 temporary folder and renamed when complete: an interrupted run (Ctrl-C, kill) leaves no
@@ -70,12 +73,29 @@ def manual_dir(out: Path, seed: int) -> Path:
     return out / f"manual_{seed:08d}"
 
 
-def generate_one(seed: int, out: Path, config: dict[str, Any], ldraw_dir: str | None) -> int:
-    """Generate, render and write one manual; returns its number of steps (main + submodules)."""
+def generate_one(
+    seed: int, out: Path, config: dict[str, Any], ldraw_dir: str | None, styles: bool = False
+) -> int:
+    """Generate, render and write one manual (``styles``: in its own style); returns its number
+    of steps (main + submodules)."""
     from mepnet import _brickgeom as _bg
 
-    manual = _bg.synth_manual(seed, config, ldraw_dir)
-    source = {"kind": "synthetic", "seed": seed, "generator": config, "renderer": "brickgeom"}
+    source: dict[str, Any] = {
+        "kind": "synthetic",
+        "seed": seed,
+        "generator": config,
+        "renderer": "brickgeom",
+    }
+    if styles:
+        from mepnet.styles import manual_style, render_style, style_generated
+
+        style = manual_style(seed, int(config["image_size"]), ldraw_dir is not None)
+        ldraw_dir = ldraw_dir if style["meshes"] == "ldraw" else None
+        manual = _bg.synth_manual(seed, config, ldraw_dir, style=render_style(style))
+        style_generated(manual, style, seed)
+        source["style"] = style
+    else:
+        manual = _bg.synth_manual(seed, config, ldraw_dir)
     if ldraw_dir is not None:
         source["part_geometry"] = "ldraw"
     try:
@@ -94,9 +114,9 @@ def _worker_init() -> None:
     quiet_interrupts_in_workers()
 
 
-def _job(args: tuple[int, str, dict[str, Any], str | None]) -> tuple[int, int]:
-    seed, out, config, ldraw_dir = args
-    return seed, generate_one(seed, Path(out), config, ldraw_dir)
+def _job(args: tuple[int, str, dict[str, Any], str | None, bool]) -> tuple[int, int]:
+    seed, out, config, ldraw_dir, styles = args
+    return seed, generate_one(seed, Path(out), config, ldraw_dir, styles)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -115,6 +135,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     ap.add_argument(
         "--config", type=Path, help="JSON file of generator settings (see docs/dataset.md)"
+    )
+    ap.add_argument(
+        "--styles",
+        action="store_true",
+        help="draw every manual in its own style (docs/styles.md); with an LDraw library, a "
+        "share of the manuals uses its part geometry and the rest the built-in meshes",
     )
     ap.add_argument("--no-progress", action="store_true", help="no progress bar")
     return ap
@@ -171,7 +197,7 @@ def _main(args: argparse.Namespace) -> int:
     )
     steps = 0
     t0 = time.perf_counter()
-    jobs = [(s, str(args.out), config, args.ldraw_dir) for s in seeds]
+    jobs = [(s, str(args.out), config, args.ldraw_dir, args.styles) for s in seeds]
     # no more worker processes than manuals to write, nor than a few per core: each is an
     # interpreter with the extension (tens of MB), and a thousand would exhaust the memory
     workers = min(args.workers, max(len(jobs), 1), MAX_WORKERS_PER_CPU * (os.cpu_count() or 1))

@@ -137,6 +137,7 @@ def make_sample(
     rng: np.random.Generator | None = None,
     slot_types: Sequence[int] | None = None,
     change: np.ndarray | None = None,
+    image: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> StepSample:
     """Network inputs of a page ``step`` (its image, camera and callout) on the shape ``base``,
     and, with ``truth`` (the step's answers: training), the targets. Without ``truth`` (a
@@ -145,15 +146,20 @@ def make_sample(
     slots (default: the first K_max); a step with more types takes several samples.
     ``change``: the step's change map at any resolution (``mepnet.stage2.synthesis.step_change``,
     which also reads the previous step's picture), else computed here from the base as mepnet
-    renders it."""
+    renders it.
+    ``image``: a picture (H, W, 3) uint8 and its instance map (H, W) int32 at the manual's size
+    to use instead of the page's (the step drawn again in another style,
+    :func:`mepnet.styles.draw_step`); needs ``truth``."""
     rng = rng or np.random.default_rng(0)
     slots = component_slots(step)
     types = list(slot_types) if slot_types is not None else list(range(len(slots)))
     types = types[: cfg.k_max]
-    rgb = step.image()
+    if image is not None and truth is None:
+        raise ValueError("a redrawn step image needs the step's answers (truth)")
+    rgb = step.image() if image is None else image[0]
     step.camera_object()  # a clear error when the page states no camera
     cam = dict(step.camera)  # type: ignore[arg-type]
-    ids = truth.ids() if truth is not None else None
+    ids = (truth.ids() if image is None else image[1]) if truth is not None else None
     kps = (
         {v.id: np.array(v.keypoint, dtype=np.float64) for v in truth.answers.views}
         if truth is not None

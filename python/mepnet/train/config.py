@@ -40,6 +40,11 @@ class TrainConfig:
     samples_per_manual: int = _f(8, "steps drawn from each generated manual")
     submodule_steps: bool = _f(True, "also train on the steps of submodule manuals")
     augment: bool = _f(True, "colour / blur / zoom augmentation")
+    styles: float = _f(
+        0.0,
+        "share of samples whose step is drawn again in a random style (mepnet.styles, "
+        "docs/styles.md; targets stay exact)",
+    )
     model: str = _f("slim", "model config: slim, paper, tiny or a JSON file")
     model_set: tuple[str, ...] = _f((), "model config overrides KEY=VALUE (VALUE as JSON)")
     init: str | None = _f(
@@ -184,6 +189,8 @@ def validate(cfg: TrainConfig) -> None:
         raise ConfigError(f"--lr must not be negative, got {cfg.lr}")
     if cfg.weight_decay < 0 or cfg.grad_clip < 0:
         raise ConfigError("--weight-decay and --grad-clip must not be negative")
+    if not 0 <= cfg.styles <= 1:
+        raise ConfigError(f"--styles must be within [0, 1], got {cfg.styles}")
     if not 0 < cfg.plateau_factor < 1:
         raise ConfigError(f"--plateau-factor must be within (0, 1), got {cfg.plateau_factor}")
     max_threads = 4 * (os.cpu_count() or 1)

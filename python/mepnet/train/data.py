@@ -59,14 +59,23 @@ def training_sample(
     augment: bool,
     rng: np.random.Generator,
     components: dict[ComponentRef, _bg.Component] | None = None,
+    styles: float = 0.0,
 ) -> StepSample:
     """Inputs and targets of a step on its true base shape (``components``: the manual's true
-    components, when the caller keeps them)."""
+    components, when the caller keeps them). With probability ``styles`` the step is drawn
+    again in a style drawn from ``rng`` (:func:`mepnet.styles.restyled_step`): the picture
+    changes, the targets stay exact."""
     build, k = key
     answers = answers_of(manual)
     comps = components if components is not None else answers.components(manual)
     page = manual.main if build is None else manual.submodules[build]
     truth = answers.build(build)
+    image = None
+    # rng is only drawn from when styles are on: runs without them see the samples they did
+    if styles > 0 and rng.random() < styles:
+        from mepnet.styles import restyled_step
+
+        image = restyled_step(manual, key, rng, comps)
     return make_sample(
         page.steps[k],
         cfg,
@@ -75,6 +84,7 @@ def training_sample(
         truth=truth.truth(k),
         augment=augment,
         rng=rng,
+        image=image,
     )
 
 
@@ -98,6 +108,7 @@ class FolderSteps(Dataset):
         seed: int,
         augment: bool,
         submodules: bool,
+        styles: float = 0.0,
     ):
         self.manuals = [load_manual(p) for r in roots for p in iter_manual_dirs(r)]
         for m in self.manuals:
@@ -109,6 +120,7 @@ class FolderSteps(Dataset):
         self.model_config = model_config
         self.seed = seed
         self.augment = augment
+        self.styles = styles
 
     def __len__(self) -> int:
         return len(self.index)
@@ -121,7 +133,7 @@ class FolderSteps(Dataset):
             self._components[m] = answers_of(manual).components(manual)
         rng = np.random.default_rng([self.seed, epoch, index])
         return training_sample(
-            manual, step, self.model_config, self.augment, rng, self._components[m]
+            manual, step, self.model_config, self.augment, rng, self._components[m], self.styles
         )
 
 
@@ -160,6 +172,7 @@ class GeneratedSteps(IterableDataset):
         rank: int = 0,
         world_size: int = 1,
         start_batch: int = 0,
+        styles: float = 0.0,
     ):
         if seed_range[1] <= seed_range[0]:
             raise ValueError(f"empty seed range {seed_range}")
@@ -174,6 +187,7 @@ class GeneratedSteps(IterableDataset):
         self.rank = rank
         self.world_size = world_size
         self.start_batch = start_batch
+        self.styles = styles
 
     def manual_seed(self, q: int) -> tuple[int, int]:
         """Seed of this rank's ``q``-th manual and how many times the range wrapped before it."""
@@ -195,7 +209,11 @@ class GeneratedSteps(IterableDataset):
                 manual, steps, order, seed, lap = loaded[q]
                 step = steps[order[slot % len(steps)]]
                 rng = np.random.default_rng([self.seed, seed, lap, slot])
-                samples.append(training_sample(manual, step, self.model_config, self.augment, rng))
+                samples.append(
+                    training_sample(
+                        manual, step, self.model_config, self.augment, rng, styles=self.styles
+                    )
+                )
         return collate(samples)
 
     def _manual(self, q: int, tmp: Path) -> tuple[Manual, list[StepKey], np.ndarray, int, int]:

@@ -129,6 +129,7 @@ def make_data(
             seed=cfg.seed,
             augment=cfg.augment,
             submodules=cfg.submodule_steps,
+            styles=cfg.styles,
         )
         if len(folder) == 0:
             raise ConfigError(f"{cfg.data[0]}: the manuals have no steps")
@@ -161,6 +162,7 @@ def make_data(
         rank=d.rank,
         world_size=d.world_size,
         start_batch=start,
+        styles=cfg.styles,
     )
     return Data(DataLoader(stream, batch_size=None, **loader_kw), None, 0, cfg.batch_size)
 
