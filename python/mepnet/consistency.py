@@ -120,10 +120,9 @@ class View:
         """The shape drawn with the view's camera: its instance map, and where it is drawn in
         colours the page could not be mistaken for (a white part on white paper is told from
         the page only by outlines other renderers may not draw: no evidence either way)."""
-        r = _bg.render(shape, self.camera, w, h)
-        ids = _bg.render(shape, self.camera, w, h, line_px=0.0).ids
+        r = _bg.render(shape, self.camera, w, h, line_px=0.0)
         unlike = np.abs(r.rgb.astype(np.float32) - self.page).max(axis=2) > PAGE_LIKE
-        return ids, (ids >= 0) & unlike
+        return r.ids, (r.ids >= 0) & unlike
 
 
 #: A drawn colour this close (0-255, any channel) to the page's is no evidence of the model.
