@@ -30,6 +30,7 @@ from torch.utils.data import Dataset, DistributedSampler, IterableDataset, get_w
 from mepnet import _brickgeom as _bg
 from mepnet.cli import quiet_interrupts_in_workers
 from mepnet.detector.config import ModelConfig
+from mepnet.detector.direct3d import add_translation_targets
 from mepnet.detector.targets import StepSample, collate, make_sample
 from mepnet.manual import (
     ComponentRef,
@@ -61,13 +62,14 @@ def training_sample(
     components: dict[ComponentRef, _bg.Component] | None = None,
 ) -> StepSample:
     """Inputs and targets of a step on its true base shape (``components``: the manual's true
-    components, when the caller keeps them)."""
+    components, when the caller keeps them); Direct3D's translations too when ``cfg.head`` is
+    ``direct3d``."""
     build, k = key
     answers = answers_of(manual)
     comps = components if components is not None else answers.components(manual)
     page = manual.main if build is None else manual.submodules[build]
     truth = answers.build(build)
-    return make_sample(
+    sample = make_sample(
         page.steps[k],
         cfg,
         base=truth.assembly_before(k, comps),
@@ -76,6 +78,9 @@ def training_sample(
         augment=augment,
         rng=rng,
     )
+    if cfg.head == "direct3d":
+        return add_translation_targets(sample, page.steps[k], truth.truth(k), cfg)
+    return sample
 
 
 def worker_init(_worker_id: int) -> None:
