@@ -111,9 +111,10 @@ def test_bad_sigma(sigma: str):
     one_line_error(r, "--sigma")
 
 
-def test_abys_is_the_baselines_name_and_the_oracle_is_named_so():
-    r = cmd("mepnet.eval", "--data", bundled(), "--predictor", "abys")
-    one_line_error(r, "oracle-abys")
+def test_abys_time_limit_is_checked():
+    for limit in ("0", "-1", "nan"):
+        r = cmd("mepnet.eval", "--data", bundled(), "--predictor", "abys", "--time-limit", limit)
+        one_line_error(r, "--time-limit")
 
 
 def test_model_settings_are_checked(tmp_path: Path):

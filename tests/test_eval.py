@@ -14,6 +14,7 @@ from mepnet import _brickgeom as _bg
 from mepnet.errors import ConfigError
 from mepnet.eval import evaluate
 from mepnet.stage2 import make_predictor
+from mepnet.stage2.abys import AbysPredictor
 from mepnet.stage2.baselines import OracleAbysPredictor, OraclePredictor
 
 SHARED = Path(__file__).resolve().parents[2] / "shared"
@@ -84,6 +85,30 @@ def test_oracle_abys_finds_poses_within_its_limit(manuals: Path):
     assert m["component_acc"] > 0.8
 
 
+def test_abys_searches_every_pose_against_the_detectors_masks(manuals: Path):
+    one = sorted(manuals.iterdir())[0]
+    p = make_predictor("abys")
+    assert isinstance(p, AbysPredictor) and p.time_limit_s == 60.0
+    m = evaluate(one, p, cd_points=2000, progress=False)
+    assert m["predictor"] == "abys" and m["n_steps"] > 5
+    assert m["n_timeouts"] == 0 and m["timeout_share"] == 0.0
+    # the shipped detector's masks are far from the true ones, but they place some parts
+    assert 0.2 < m["component_acc"] < 1.0, m
+
+
+def test_abys_reports_components_over_their_time_limit(manuals: Path):
+    one = sorted(manuals.iterdir())[0]
+    r = run_eval("--data", str(one), "--predictor", "abys", "--time-limit", "1e-9")
+    assert r.returncode == 0, r.stderr
+    assert "over their limit" in r.stdout
+    p = make_predictor("abys", time_limit_s=1e-9)
+    m = evaluate(one, p, cd_points=200, progress=False)
+    # no pose is scored within a nanosecond: every component searched is over its limit
+    assert m["n_timeouts"] > 0.8 * m["n_components"]
+    assert m["timeout_share"] == m["n_timeouts"] / m["n_components"]
+    assert m["n_failures"] >= m["n_timeouts"]
+
+
 def test_synthesis_lifts_from_the_change_alone(manuals: Path):
     one = sorted(manuals.iterdir())[0]
     m = evaluate(one, make_predictor("synthesis"), cd_points=2000, progress=False)
@@ -99,8 +124,8 @@ def test_bad_input_exits_2(tmp_path: Path, manuals: Path):
             ["--data", str(manuals), "--predictor", "mepnet", "--weights", str(tmp_path / "w")],
             "weights not found",
         ),
-        (["--data", str(manuals), "--predictor", "direct3d"], "Direct3D"),
-        (["--data", str(manuals), "--predictor", "abys"], "oracle-abys"),
+        (["--data", str(manuals), "--predictor", "direct3d"], "no Direct3D weights"),
+        (["--data", str(manuals), "--predictor", "abys", "--time-limit", "0"], "--time-limit"),
         (["--data", str(manuals), "--predictor", "oracle-noisy", "--sigma", "-1"], "--sigma"),
     ]
     for args, msg in cases:
@@ -109,8 +134,8 @@ def test_bad_input_exits_2(tmp_path: Path, manuals: Path):
         assert msg in r.stderr and "Traceback" not in r.stderr
     with pytest.raises(ConfigError, match="unknown predictor"):
         make_predictor("nope")
-    with pytest.raises(ConfigError, match="not part of this build yet"):
-        make_predictor("abys")
+    with pytest.raises(ConfigError, match="time limit"):
+        make_predictor("abys", time_limit_s=-1.0)
 
 
 def test_stage2_binding_checks_its_input():

@@ -5,7 +5,7 @@
 
 A manual folder (``manual.json`` + step images; with no argument, the example manual bundled in
 the package): the predictor (by default the detector with the bundled slim weights, or
-``--weights``; or ``synthesis`` / ``oracle`` / ``oracle-noisy`` / ``oracle-abys``) runs over the manual tree,
+``--weights``; or ``synthesis`` / ``abys`` / ``direct3d`` / ``oracle`` / ``oracle-noisy`` / ``oracle-abys``) runs over the manual tree,
 submodules first, on its own predictions, and ``plan.json``, ``plan.mpd``, step overlays and
 ``report.html`` (the plan to look at in a browser, :mod:`mepnet.report`) are written to
 ``--out``; a per-step table is printed, with accuracy against the manual's ground truth.
@@ -262,7 +262,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument(
         "--weights",
         type=Path,
-        help="detector weights (model.safetensors) for --predictor mepnet (default: the shipped slim weights)",
+        help="network weights (model.safetensors): the detector's for --predictor mepnet and "
+        "abys (default: the shipped slim weights), Direct3D's for --predictor direct3d",
     )
     ap.add_argument(
         "--sigma", type=float, default=1.0, help="keypoint noise for --predictor oracle-noisy"

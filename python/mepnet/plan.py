@@ -25,6 +25,9 @@ import numpy as np
 
 from mepnet import _brickgeom as _bg
 from mepnet.cameras import BuildCameras, CameraEstimate
+from mepnet.consistency import Placement, Revision, StepCheck, View, check_step
+from mepnet.consistency import build as build_placements
+from mepnet.consistency import repair as repair_placements
 from mepnet.errors import MepnetError
 from mepnet.files import atomic_folder
 from mepnet.frames import (
@@ -64,6 +67,12 @@ class StepRun:
     truth: StepTruth | None = None
     #: the camera the step was predicted with: given by the page, or estimated
     camera: CameraEstimate | None = None
+    #: how well the predicted step explains its picture (:mod:`mepnet.consistency`)
+    check: StepCheck | None = None
+    #: earlier placements this step's picture contradicted, changed (:func:`repair`)
+    revisions: list[Revision] = field(default_factory=list)
+    #: wall time of the repair after this step
+    repair_seconds: float = 0.0
 
 
 @dataclass
@@ -120,6 +129,7 @@ def run_build(
     components: dict[ComponentRef, _bg.Component],
     teacher_forced: bool = False,
     on_step: Callable[[], None] | None = None,
+    repair: bool = True,
 ) -> BuildRun:
     """Run every step of one build (see :func:`run_manual`)."""
     build = manual.main if key is None else manual.submodules[key]
@@ -132,6 +142,9 @@ def run_build(
     base = _bg.Assembly()
     cameras = BuildCameras(manual.image_size)
     earlier: list[EarlierStep] = []  # the page steps so far, with the cameras predicted with
+    placements: list[Placement] = []  # the shape built so far, in order (autoregressive)
+    views: list[View] = []  # the pictures so far as the repair sees them
+    w, h = manual.image_size
     for k, step in enumerate(build.steps):
         truth = full_truth = answers.truth(k) if answers is not None else None
         page_step, kept = _missing_entries(components, step)
@@ -148,6 +161,7 @@ def run_build(
             truth: StepTruth | None = truth,
             where: str = step.where,
             earlier: tuple[EarlierStep, ...] = tuple(earlier),
+            base: _bg.Assembly = base,
         ) -> tuple[list[Prediction], float]:
             ctx = StepContext(page, base.copy(), components, manual.image_size, earlier)
             try:
@@ -174,26 +188,55 @@ def run_build(
                     Prediction(e, c.component, None, None, failure=why) for _ in range(c.count)
                 ]
         # the predictions join the shape (teacher-forced: a trial copy; the true step joins it)
+        before = base.copy()
         built = base.copy() if teacher_forced else base
         placed: list[Placed | None] = []
-        for p in preds:
+        for j, p in enumerate(preds):
             pl: Placed | None = None
             if p.placed and p.failure is None:
                 colour = step.components[p.entry].colour
                 try:
                     built.add(components[p.component], p.yaw, p.t, colour)
                     pl = (p.component, int(p.yaw), tuple(p.t), colour)  # type: ignore[arg-type]
+                    placements.append(
+                        Placement(k + 1, j, components[p.component], pl[1], pl[2], colour)
+                    )
                 except BrickGeomError as e:  # a predictor other than stage 2 may collide
                     p.failure = str(e)
             placed.append(pl)
+        seen = None if camera.camera is None else camera.step_camera()
+        page_seen = dataclasses.replace(step, camera=seen)
+        checked = check_step(
+            StepContext(page_seen, before, components, manual.image_size, tuple(earlier)),
+            preds,
+            built,
+        )
         if teacher_forced:
             for inst in full_truth.placed():  # type: ignore[union-attr]
                 base.add(components[inst.component], inst.yaw, inst.t, inst.colour)
-        seen = None if camera.camera is None else camera.step_camera()
-        earlier.append(EarlierStep(dataclasses.replace(step, camera=seen), len(base)))
         run.steps.append(
-            StepRun(k + 1, step.image_path.name, preds, placed, seconds, full_truth, camera)
+            StepRun(
+                k + 1, step.image_path.name, preds, placed, seconds, full_truth, camera, checked
+            )
         )
+        if camera.camera is not None and repair and not teacher_forced:
+            t0 = time.perf_counter()
+            views.append(View.of(k + 1, camera.camera, step.image()))
+            placements, revisions = repair_placements(placements, views, w, h)
+            for r in revisions:  # the earlier step's prediction takes its new pose
+                old = run.steps[r.step - 1]
+                p, pl = old.predictions[r.pred], old.placed[r.pred]
+                old.predictions[r.pred] = dataclasses.replace(
+                    p, yaw=r.after[0], t=r.after[1], extra={**p.extra, "revised_at": k + 1}
+                )
+                old.placed[r.pred] = (pl[0], r.after[0], r.after[1], pl[3])  # type: ignore[index]
+            if revisions:
+                rebuilt = build_placements(placements)
+                assert rebuilt is not None  # the repair keeps every placement valid
+                base = rebuilt
+            run.steps[-1].revisions = revisions
+            run.steps[-1].repair_seconds = time.perf_counter() - t0
+        earlier.append(EarlierStep(page_seen, len(base)))
         if on_step is not None:
             on_step()
     return run
@@ -311,12 +354,14 @@ def run_manual(
     predictor: Predictor,
     teacher_forced: bool = False,
     on_step: Callable[[], None] | None = None,
+    repair: bool = True,
 ) -> ManualRun:
     """Run ``predictor`` over every build of ``manual``: submodules first, then the main model.
     Autoregressive (default): every step on the predictor's own earlier placements, a
     submodule used as the shape its own steps built. ``teacher_forced``: every step on the true
     shape, submodules as they truly are (needs the answers). ``on_step`` is called after every
-    step (progress bars)."""
+    step (progress bars). ``repair`` (autoregressive only): after every step, earlier
+    placements its picture contradicts are re-placed (:func:`mepnet.consistency.repair`)."""
     if teacher_forced:
         from mepnet.manual import answers_of
 
@@ -325,7 +370,7 @@ def run_manual(
         components = manual.primitive_components()
     runs = []
     for key, _ in manual.builds():
-        run = run_build(predictor, manual, key, components, teacher_forced, on_step)
+        run = run_build(predictor, manual, key, components, teacher_forced, on_step, repair)
         runs.append(run)
         if key is not None and not teacher_forced:
             placed = run.placed()
@@ -534,6 +579,20 @@ def plan_json(run: ManualRun) -> dict[str, Any]:
             rec_step: dict[str, Any] = {"index": s.index, "image": s.image, "seconds": s.seconds}
             if s.camera is not None:
                 rec_step.update(s.camera.to_json())
+            if s.check is not None:
+                rec_step.update(confidence=s.check.confidence, flags=s.check.flags)
+            rec_step["revisions"] = [
+                {
+                    "step": r.step,
+                    "component": _ref_json(
+                        b.steps[r.step - 1].predictions[r.pred].component, manual
+                    ),
+                    "before": {"yaw": r.before[0], "lattice": list(r.before[1])},
+                    "after": {"yaw": r.after[0], "lattice": list(r.after[1])},
+                    "disagreement_px": list(r.disagreement),
+                }
+                for r in s.revisions
+            ]
             rec_step["components"] = records
             out.append(rec_step)
         return out

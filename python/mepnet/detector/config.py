@@ -9,6 +9,11 @@ from typing import Any
 
 from mepnet.errors import ConfigError
 
+#: The networks a configuration can build: ``mepnet`` (the detector: keypoint heatmaps, masks,
+#: rotation classes) and ``direct3d`` (the paper's Direct3D baseline: the same encoders, each
+#: instance's 3D translation and rotation regressed directly; :mod:`mepnet.detector.direct3d`).
+HEADS = ("mepnet", "direct3d")
+
 
 @dataclass(frozen=True)
 class ModelConfig:
@@ -38,6 +43,8 @@ class ModelConfig:
     emb_dim: int = 1
     #: Output stride of the heads.
     stride: int = 4
+    #: Which network (:data:`HEADS`); weights stored before it existed are ``mepnet``'s.
+    head: str = "mepnet"
 
     def __post_init__(self) -> None:
         """Every size checked, so a bad setting fails here with one line naming it, not later
@@ -48,6 +55,8 @@ class ModelConfig:
 
         if not isinstance(self.name, str):
             raise bad("name", "must be a string")
+        if self.head not in HEADS:
+            raise bad("head", f"must be one of {', '.join(HEADS)}")
         for name in (
             "image_size",
             "in_channels",

@@ -1,14 +1,22 @@
 """The training objective (paper §4.1): L = 1 * (focal heatmap + L1 offset)
 + 1 * (mask cross-entropy + associative-embedding pull/push) + 0.1 * rotation cross-entropy.
-Only the slots a step uses count."""
+Only the slots a step uses count.
+
+Direct3D (``ModelConfig.head == "direct3d"``; supplementary: L_keypoint and L_mask replaced by
+L_trans, weight 1): focal heatmap (it only says where an instance's translation and rotation are
+read) + L1 on the translation in units of :data:`mepnet.detector.net.TRANSLATION_NORM` lattice
+cells + 0.1 * rotation cross-entropy."""
 
 from __future__ import annotations
 
 import torch
 import torch.nn.functional as F
 from mepnet.detector.config import ModelConfig
+from mepnet.detector.net import TRANSLATION_NORM
 
 WEIGHTS = {"keypoint": 1.0, "mask": 1.0, "rotation": 0.1}
+#: Direct3D's weights (the supplementary's: L_trans weight 1).
+DIRECT3D_WEIGHTS = {"heatmap": 1.0, "translation": 1.0, "rotation": 0.1}
 
 
 def focal_loss(logits: torch.Tensor, target: torch.Tensor, valid: torch.Tensor) -> torch.Tensor:
@@ -69,6 +77,8 @@ def total_loss(
     out: dict[str, torch.Tensor], batch: dict[str, torch.Tensor], cfg: ModelConfig
 ) -> tuple[torch.Tensor, dict[str, float]]:
     """The weighted sum and its parts (floats, for logging)."""
+    if cfg.head == "direct3d":
+        return direct3d_loss(out, batch)
     valid = batch["comp_valid"]
     inst_valid = batch["inst_valid"]
     n_inst = inst_valid.sum().clamp(min=1.0)
@@ -100,4 +110,30 @@ def total_loss(
         "push": push,
         "rotation": rot,
     }
+    return loss, {k: float(v.detach()) for k, v in parts.items()}
+
+
+def _rotation_loss(out: torch.Tensor, batch: dict[str, torch.Tensor]) -> torch.Tensor:
+    """Rotation cross-entropy at the instances' centre cells, averaged over instances."""
+    inst_valid = batch["inst_valid"]
+    logits = _gather(out, batch["inst_slot"], batch["inst_cell"])  # (B, M, 7)
+    ce = F.cross_entropy(logits.flatten(0, 1), batch["inst_rot"].flatten(), reduction="none")
+    return (ce * inst_valid.flatten()).sum() / inst_valid.sum().clamp(min=1.0)
+
+
+def direct3d_loss(
+    out: dict[str, torch.Tensor], batch: dict[str, torch.Tensor]
+) -> tuple[torch.Tensor, dict[str, float]]:
+    """Direct3D's objective (module docstring); ``batch`` needs ``inst_translation``
+    (:func:`mepnet.detector.direct3d.add_translation_targets`)."""
+    inst_valid = batch["inst_valid"]
+    n_inst = inst_valid.sum().clamp(min=1.0)
+    heat = focal_loss(out["heatmap"], batch["heatmap"], batch["comp_valid"])
+    pred = _gather(out["translation"], batch["inst_slot"], batch["inst_cell"])  # (B, M, 3)
+    err = F.l1_loss(pred, batch["inst_translation"], reduction="none").sum(-1) / TRANSLATION_NORM
+    trans = (err * inst_valid).sum() / n_inst
+    rot = _rotation_loss(out["rotation"], batch)
+    w = DIRECT3D_WEIGHTS
+    loss = w["heatmap"] * heat + w["translation"] * trans + w["rotation"] * rot
+    parts = {"heatmap": heat, "translation": trans, "rotation": rot}
     return loss, {k: float(v.detach()) for k, v in parts.items()}

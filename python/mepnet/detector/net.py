@@ -12,6 +12,11 @@
 4. Heads per slot: centre heatmap + offset, semantic mask + associative embedding, 7-way
    symmetry-aware rotation.
 
+1-3 are :class:`Trunk`; :class:`MEPNet` adds the heads of 4. :class:`Direct3DNet` (the paper's
+Direct3D baseline, ``ModelConfig.head = "direct3d"``) adds instead a centre heatmap and, on the
+features with CoordConv channels beside them, heads that regress each instance's 3D translation
+and its rotation class directly.
+
 Shapes in comments: B batch, K slots, H/W image, h/w = H/4.
 """
 
@@ -150,8 +155,16 @@ class Hourglass(nn.Module):
         return x
 
 
-class MEPNet(nn.Module):
-    """The detector: heads per component slot at stride ``cfg.stride``."""
+def _head(channels: int, cout: int) -> nn.Sequential:
+    """A head: 3x3 conv - ReLU - 1x1 conv to ``cout`` maps."""
+    return nn.Sequential(
+        nn.Conv2d(channels, channels, 3, 1, 1), nn.ReLU(inplace=True), nn.Conv2d(channels, cout, 1)
+    )
+
+
+class Trunk(nn.Module):
+    """The encoders and the hourglass, shared by the detector and the Direct3D baseline:
+    ``features(batch)`` is the (B, c, h, w) map the heads read."""
 
     def __init__(
         self,
@@ -163,11 +176,10 @@ class MEPNet(nn.Module):
         state_channels: int,
         comp_channels: int,
         k_max: int,
-        emb_dim: int,
     ):
         super().__init__()
         c = hg_channels
-        self.k_max, self.emb_dim = k_max, emb_dim
+        self.k_max = k_max
         self.state = StateEncoder(channels=state_channels)
         self.components = ComponentEncoder(channels=comp_channels)
         # stem on the image, the rendered state maps, the projected state features and the
@@ -186,22 +198,9 @@ class MEPNet(nn.Module):
         )
         self.inter = nn.ModuleList([nn.Conv2d(c, c, 1) for _ in range(hg_stacks - 1)])
 
-        def head(cout: int) -> nn.Sequential:
-            return nn.Sequential(
-                nn.Conv2d(c, c, 3, 1, 1), nn.ReLU(inplace=True), nn.Conv2d(c, cout, 1)
-            )
-
-        self.heatmap = head(k_max)
-        self.offset = head(2 * k_max)
-        self.mask = head(k_max)
-        self.embedding = head(k_max * emb_dim)
-        self.rotation = head(k_max * 7)
-        # CenterNet's prior: heatmaps start near 0.01 so the focal loss is stable
-        nn.init.constant_(self.heatmap[-1].bias, -4.6)
-
-    def forward(self, batch: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+    def features(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
+        """The hourglass output, (B, c, h, w)."""
         image = batch["image"]  # (B, 4, H, W)
-        b = image.shape[0]
         state = self.state(batch["base_voxels"], batch["state_index"])  # (B, C1, H, W)
         emb = self.components(batch["comp_voxels"], batch["comp_valid"])  # (B, K, C2)
         planes = camera_planes(batch["camera"], image.shape[2:])
@@ -210,7 +209,46 @@ class MEPNet(nn.Module):
         for i, hg in enumerate(self.stacks):
             y = hg(x, cond)
             x = x + self.inter[i](y) if i < len(self.inter) else y
-        k = self.k_max
+        return x
+
+
+class MEPNet(Trunk):
+    """The detector: heads per component slot at stride ``cfg.stride``."""
+
+    def __init__(
+        self,
+        *,
+        in_channels: int,
+        hg_channels: int,
+        hg_stacks: int,
+        hg_depth: int,
+        state_channels: int,
+        comp_channels: int,
+        k_max: int,
+        emb_dim: int,
+    ):
+        super().__init__(
+            in_channels=in_channels,
+            hg_channels=hg_channels,
+            hg_stacks=hg_stacks,
+            hg_depth=hg_depth,
+            state_channels=state_channels,
+            comp_channels=comp_channels,
+            k_max=k_max,
+        )
+        c = hg_channels
+        self.emb_dim = emb_dim
+        self.heatmap = _head(c, k_max)
+        self.offset = _head(c, 2 * k_max)
+        self.mask = _head(c, k_max)
+        self.embedding = _head(c, k_max * emb_dim)
+        self.rotation = _head(c, k_max * 7)
+        # CenterNet's prior: heatmaps start near 0.01 so the focal loss is stable
+        nn.init.constant_(self.heatmap[-1].bias, -4.6)
+
+    def forward(self, batch: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+        x = self.features(batch)
+        b, k = x.shape[0], self.k_max
         h, w = x.shape[2:]
         return {
             "heatmap": self.heatmap(x),  # (B, K, h, w) logits
@@ -221,8 +259,100 @@ class MEPNet(nn.Module):
         }
 
 
-def build_model(cfg: ModelConfig) -> MEPNet:
-    """The network for a configuration."""
+#: Direct3D's CoordConv channels: the cell centre in NDC (2), the point of the world that
+#: projects there on the view plane through the world origin, in lattice cells / COORD_NORM (3),
+#: and the view direction (3).
+COORD_CHANNELS = 8
+#: Lattice cells per unit of Direct3D's coordinate channels and of its translation residual.
+COORD_NORM, TRANSLATION_NORM = 32.0, 16.0
+#: LDU per lattice cell (x, y, z), as :data:`mepnet.geom.LDU_PER_CELL`.
+_CELL_LDU = (10.0, 8.0, 10.0)
+
+
+def coord_channels(cam: torch.Tensor, h: int, w: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """Direct3D's CoordConv input (B, COORD_CHANNELS, h, w) for the cameras ``cam`` (B, 12:
+    rotation rows u, v, w, scale, tx, ty; :func:`mepnet.detector.targets.camera_vector`), and
+    the view-plane point of every cell in lattice cells, (B, 3, h, w). Under weak perspective a
+    cell's pixel fixes a world point up to depth along the view direction: that point plus a
+    regressed offset is the translation (the network still has to find the depth and the
+    offset of the component's origin from it)."""
+    rot = cam[:, :9].view(-1, 3, 3)
+    scale, t = cam[:, 9, None, None], cam[:, 10:12]
+    nx = (torch.arange(w, dtype=cam.dtype, device=cam.device) + 0.5) / w * 2 - 1
+    ny = 1 - (torch.arange(h, dtype=cam.dtype, device=cam.device) + 0.5) / h * 2
+    u = (nx[None, None, :] - t[:, 0, None, None]) / scale  # (B, 1, w) LDU along the image's u
+    v = (ny[None, :, None] - t[:, 1, None, None]) / scale  # (B, h, 1) LDU along v
+    ldu = u[:, None] * rot[:, 0, :, None, None] + v[:, None] * rot[:, 1, :, None, None]
+    cells = ldu / torch.tensor(_CELL_LDU, dtype=cam.dtype, device=cam.device)[None, :, None, None]
+    b = cam.shape[0]
+    planes = [
+        nx[None, None, None, :].expand(b, 1, h, w),
+        ny[None, None, :, None].expand(b, 1, h, w),
+        cells / COORD_NORM,
+        rot[:, 2, :, None, None].expand(b, 3, h, w),
+    ]
+    return torch.cat(planes, dim=1), cells
+
+
+class Direct3DNet(Trunk):
+    """The paper's Direct3D baseline: the detector's encoders and hourglass, and heads that
+    regress each instance's 3D translation and rotation directly, read at its centre cell (a
+    centre heatmap says where the instances are; the counts are the manual's). CoordConv: the
+    heads see :func:`coord_channels` beside the features."""
+
+    def __init__(
+        self,
+        *,
+        in_channels: int,
+        hg_channels: int,
+        hg_stacks: int,
+        hg_depth: int,
+        state_channels: int,
+        comp_channels: int,
+        k_max: int,
+    ):
+        super().__init__(
+            in_channels=in_channels,
+            hg_channels=hg_channels,
+            hg_stacks=hg_stacks,
+            hg_depth=hg_depth,
+            state_channels=state_channels,
+            comp_channels=comp_channels,
+            k_max=k_max,
+        )
+        c = hg_channels
+        self.heatmap = _head(c, k_max)
+        self.translation = _head(c + COORD_CHANNELS, 3 * k_max)
+        self.rotation = _head(c + COORD_CHANNELS, 7 * k_max)
+        nn.init.constant_(self.heatmap[-1].bias, -4.6)
+
+    def forward(self, batch: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+        x = self.features(batch)
+        b, k = x.shape[0], self.k_max
+        h, w = x.shape[2:]
+        coords, cells = coord_channels(batch["camera"], h, w)
+        xc = torch.cat([x, coords.to(x.dtype)], dim=1)
+        residual = self.translation(xc).view(b, k, 3, h, w)
+        return {
+            "heatmap": self.heatmap(x),  # (B, K, h, w) logits
+            # (B, K, 3, h, w): lattice cells (x, z half-studs, y plates) of the turned world
+            "translation": cells[:, None].to(x.dtype) + TRANSLATION_NORM * residual,
+            "rotation": self.rotation(xc).view(b, k, 7, h, w),  # logits
+        }
+
+
+def build_model(cfg: ModelConfig) -> MEPNet | Direct3DNet:
+    """The network for a configuration (its ``head``: the detector or Direct3D)."""
+    if cfg.head == "direct3d":
+        return Direct3DNet(
+            in_channels=cfg.in_channels,
+            hg_channels=cfg.hg_channels,
+            hg_stacks=cfg.hg_stacks,
+            hg_depth=cfg.hg_depth,
+            state_channels=cfg.state_channels,
+            comp_channels=cfg.comp_channels,
+            k_max=cfg.k_max,
+        )
     return MEPNet(
         in_channels=cfg.in_channels,
         hg_channels=cfg.hg_channels,

@@ -15,7 +15,7 @@ from typing import Any
 
 import torch
 from mepnet.detector.config import ModelConfig
-from mepnet.detector.net import MEPNet, build_model
+from mepnet.detector.net import Direct3DNet, MEPNet, build_model
 from mepnet.errors import CheckpointError
 from mepnet.files import atomic_write_bytes, atomic_write_json, regular_input
 from safetensors import SafetensorError
@@ -118,9 +118,10 @@ def load_model_weights(
 
 def load_model(
     path: str | os.PathLike[str], device: str | torch.device = "cpu"
-) -> tuple[MEPNet, ModelConfig]:
-    """A ready :class:`mepnet.detector.net.MEPNet` (eval mode) and its config from
-    ``model.safetensors``."""
+) -> tuple[MEPNet | Direct3DNet, ModelConfig]:
+    """A ready network (eval mode: :class:`mepnet.detector.net.MEPNet`, or
+    :class:`~mepnet.detector.net.Direct3DNet` for weights trained with ``--head direct3d``) and
+    its config from ``model.safetensors``."""
     tensors, cfg_dict = load_model_weights(path)
     try:
         cfg = ModelConfig.from_dict(cfg_dict)

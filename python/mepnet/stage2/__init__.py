@@ -5,13 +5,16 @@ Predictors behind one interface (:mod:`.base`) and a registry (:func:`make_predi
 - ``mepnet``: the detector, then stage 2 by synthesis or the keypoint lift (:mod:`.detector`);
 - ``synthesis``: stage 2 by synthesis without a detector (:mod:`.synthesis`, the ablation);
 - ``oracle`` / ``oracle-noisy`` / ``oracle-abys``: oracles fed the answers (:mod:`.baselines`);
-- ``direct3d`` and ``abys`` (the paper's baselines) are not built yet and say so.
+- ``abys``: analysis-by-synthesis on the detector's masks (:mod:`.abys`, the paper's Table 3);
+- ``direct3d``: the paper's Direct3D baseline (:mod:`.direct3d`), from weights trained with
+  ``python -m mepnet.train --head direct3d`` (``--weights``; none are shipped yet).
 """
 
 from __future__ import annotations
 
 from importlib import resources
 from pathlib import Path
+from typing import Any
 
 from mepnet.errors import CheckpointError, ConfigError
 from mepnet.stage2.base import (
@@ -40,6 +43,27 @@ def bundled_weights() -> Path:
     return Path(str(resources.files("mepnet") / "data" / "weights" / "slim.safetensors"))
 
 
+def bundled_direct3d_weights() -> Path:
+    """Where shipped Direct3D weights would be (none are shipped yet)."""
+    return Path(str(resources.files("mepnet") / "data" / "weights" / "direct3d.safetensors"))
+
+
+def _load(path: Path, head: str, predictor: str) -> tuple[Any, Any]:
+    """The network and config of ``path``, which must hold a ``head`` network (one line naming
+    the file otherwise)."""
+    from mepnet.detector.weights import load_model
+
+    if not path.exists():
+        raise CheckpointError(f"{path}: detector weights not found")
+    model, cfg = load_model(path)
+    if cfg.head != head:
+        want = "--head direct3d" if head == "direct3d" else "the detector (--head mepnet)"
+        raise CheckpointError(
+            f"{path}: holds {cfg.head} weights; --predictor {predictor} needs weights of {want}"
+        )
+    return model, cfg
+
+
 def make_predictor(
     name: str,
     sigma: float = 1.0,
@@ -48,8 +72,9 @@ def make_predictor(
     weights: str | Path | None = None,
     lift: str = "synthesis",
 ) -> Predictor:
-    """A predictor by name (``mepnet`` takes ``weights``, a ``model.safetensors``; default: the
-    shipped slim weights)."""
+    """A predictor by name (``mepnet`` and ``abys`` take ``weights``, a ``model.safetensors``;
+    default: the shipped slim weights; ``direct3d`` takes Direct3D weights); ``time_limit_s``:
+    seconds per component for ``abys`` and ``oracle-abys``."""
     if not time_limit_s > 0:
         raise ConfigError(f"the time limit must be > 0 seconds, got {time_limit_s}")
     if name == "oracle":
@@ -70,23 +95,29 @@ def make_predictor(
         from mepnet.stage2.synthesis import SynthesisPredictor
 
         return SynthesisPredictor(min(time_limit_s, 10.0))
-    if name == "mepnet":
-        from mepnet.detector.weights import load_model
+    if name in ("mepnet", "abys"):
         from mepnet.stage2.detector import MEPNetPredictor
 
         if lift not in LIFTS:
             raise ConfigError(f"unknown lift '{lift}' (choose from {', '.join(LIFTS)})")
-        path = Path(weights or bundled_weights())
-        if not path.exists():
-            raise CheckpointError(f"{path}: detector weights not found")
-        model, cfg = load_model(path)
-        return MEPNetPredictor(model, cfg, lift=lift)
-    if name in ("direct3d", "abys"):
-        what = {"direct3d": "the Direct3D baseline", "abys": "a-by-s on the detector's masks"}
-        raise ConfigError(
-            f"predictor '{name}' ({what[name]}) is not part of this build yet "
-            "(the ground-truth-mask variant is 'oracle-abys')"
-        )
+        model, cfg = _load(Path(weights or bundled_weights()), "mepnet", name)
+        detector = MEPNetPredictor(model, cfg, lift=lift)  # type: ignore[arg-type]
+        if name == "mepnet":
+            return detector
+        from mepnet.stage2.abys import AbysPredictor
+
+        return AbysPredictor(detector, time_limit_s)
+    if name == "direct3d":
+        from mepnet.stage2.direct3d import Direct3DPredictor
+
+        path = Path(weights) if weights else bundled_direct3d_weights()
+        if not weights and not path.exists():
+            raise ConfigError(
+                "predictor 'direct3d' needs --weights: no Direct3D weights are shipped yet "
+                "(train them with python -m mepnet.train --head direct3d; docs/results.md)"
+            )
+        model, cfg = _load(path, "direct3d", name)
+        return Direct3DPredictor(model, cfg)  # type: ignore[arg-type]
     raise ConfigError(f"unknown predictor '{name}' (choose from {', '.join(PREDICTORS)})")
 
 
@@ -97,6 +128,7 @@ __all__ = [
     "Prediction",
     "Predictor",
     "StepContext",
+    "bundled_direct3d_weights",
     "bundled_weights",
     "make_predictor",
     "predict_step",

@@ -5,8 +5,8 @@
 - ``oracle-noisy``: the same with Gaussian keypoint jitter of ``sigma`` pixels.
 - ``oracle-abys``: analysis-by-synthesis on the *true* instance masks (an oracle): every valid
   pose of each component rasterized over the current shape and scored by mask IoU, with a
-  per-component time limit. (The paper's a-by-s on the detector's masks is ``abys``, a
-  baseline still to be built.)
+  per-component time limit. (The paper's a-by-s on the detector's masks is ``abys``,
+  :mod:`mepnet.stage2.abys`.)
 """
 
 from __future__ import annotations

@@ -29,7 +29,7 @@ import numpy as np
 
 from mepnet import _brickgeom as _bg
 from mepnet.errors import ManualFormatError
-from mepnet.geom import LDU_PER_CELL, rotate_ldu
+from mepnet.geom import LDU_PER_CELL, BrickGeomError, rotate_ldu
 from mepnet.stage2.base import Prediction, Predictor, StepContext
 from mepnet.state import (
     CHANGE_THRESHOLD,
@@ -171,30 +171,122 @@ def synthesize(
     """Poses for every instance of ``types`` on ``ctx.base`` (see the module docstring);
     ``picture``: the step image as floats in [0, 1] when the caller has read it already;
     ``tone``: its tone fit, (2, 3) gain and bias per channel, from :func:`step_change` (none:
-    colours compared as rendered)."""
+    colours compared as rendered).
+
+    A step adding several instances is solved greedily, one instance at a time; while the
+    finished step explains the changed pixels poorly (:func:`_explained` below
+    :data:`WELL_EXPLAINED`), each decision in turn is revisited: the greedy is finished again
+    from each of the next :data:`FIRST_CHOICES` - 1 best choices there, and the solution whose
+    parts together explain the picture best is kept (a stack of equal parts: the part that
+    best fits the whole stack is not the bottom one)."""
     w, h = ctx.image_size
-    asm = ctx.base.copy()
-    cam = ctx.camera
-    left = [t.count for t in types]
-    unexplained = np.ones((h, w), dtype=bool)
-    colours = [ctx.colour(t.entry) for t in types]
     if not COLOUR_WEIGHT:
         picture = None
     elif picture is None:
         picture = step_picture(ctx)
     if tone is None:
         tone = np.array([[1.0, 1.0, 1.0], [0.0, 0.0, 0.0]])  # gain, bias per channel
+    preds, taken, options = _greedy(ctx, types, time_limit_s, picture, tone, [])
+    if sum(t.count for t in types) < 2:
+        return preds
+    mask = np.zeros((h, w), bool)
+    for t in types:
+        mask |= t.mask
+    score = _explained(ctx, preds, mask, picture, tone)
+    # each decision in turn: the next best choices there, the rest greedy again
+    level = 0
+    while score < WELL_EXPLAINED and level < len(taken):
+        for alt in options[level][1:FIRST_CHOICES]:
+            if alt == taken[level]:
+                continue
+            alt_preds, alt_taken, alt_options = _greedy(
+                ctx, types, time_limit_s, picture, tone, [*taken[:level], alt]
+            )
+            alt_score = _explained(ctx, alt_preds, mask, picture, tone)
+            if alt_score > score + 1e-6:
+                preds, score, taken = alt_preds, alt_score, alt_taken
+                options = options[: level + 1] + alt_options[level + 1 :]
+        level += 1
+    return preds
+
+
+#: A multi-instance step whose parts explain the changed pixels at least this well
+#: (:func:`_explained`) is kept as the greedy solved it.
+WELL_EXPLAINED = 0.95
+#: Choices tried at each decision of a multi-instance step explained worse (the greedy's own
+#: included).
+FIRST_CHOICES = 3
+
+#: A decision of :func:`_greedy`: (type index, yaw, translation).
+First = tuple[int, int, tuple[int, int, int]]
+
+
+def _explained(
+    ctx: StepContext,
+    preds: list[Prediction],
+    mask: np.ndarray,
+    picture: np.ndarray | None,
+    tone: np.ndarray,
+) -> float:
+    """How well a step's predicted parts together explain its picture: the IoU of their
+    visible pixels with the changed pixels ``mask``, less the colour residual over them."""
+    w, h = ctx.image_size
+    asm = ctx.base.copy()
+    n0 = len(asm)
+    for p in preds:
+        if p.placed:
+            asm.add(ctx.components[p.component], p.yaw, p.t, ctx.colour(p.entry))  # type: ignore[arg-type]
+    r = _bg.render(asm, ctx.camera, w, h)
+    new = r.ids >= n0
+    union = int((new | mask).sum())
+    score = float((new & mask).sum() / union) if union else 0.0
+    if picture is not None and new.any():
+        rendered = r.rgb[new] / 255.0 * tone[0] + tone[1]
+        score -= COLOUR_WEIGHT * float(np.abs(picture[new] - rendered).max(axis=1).mean())
+    return score - 0.5 * sum(1 for p in preds if not p.placed) / max(len(preds), 1)
+
+
+def _greedy(
+    ctx: StepContext,
+    types: list[SynthesisType],
+    time_limit_s: float,
+    picture: np.ndarray | None,
+    tone: np.ndarray,
+    prefix: list[First],
+) -> tuple[list[Prediction], list[First], list[list[First]]]:
+    """The greedy of :func:`synthesize`, its first decisions forced to ``prefix``. Returns the
+    predictions, the decision taken at each round and each unforced round's candidates, best
+    first (distinct placements: a symmetric part's equal yaws once)."""
+    w, h = ctx.image_size
+    asm = ctx.base.copy()
+    cam = ctx.camera
+    left = [t.count for t in types]
+    unexplained = np.ones((h, w), dtype=bool)
+    colours = [ctx.colour(t.entry) for t in types]
     preds: list[Prediction] = []
+    taken: list[First] = []
+    options: list[list[First]] = []
     while any(left):
         best: tuple[float, int, tuple[int, tuple[int, int, int]], dict[str, Any]] | None = None
+        ranked_here: list[tuple[float, First]] = []
+        forced = len(preds) < len(prefix)
+        if forced:
+            i, yaw, tr = prefix[len(preds)]
+            best = (0.0, i, (yaw, tr), {"forced": True})
         for i, t in enumerate(types):
             m = t.mask & unexplained
-            if not left[i] or not m.any():
+            if forced or not left[i] or not m.any():
                 continue
             ranked, timed_out = _bg.abys_ranked(
-                asm, cam, w, h, t.component, m, RANKED, time_limit_s
+                asm, cam, w, h, t.component, m, 4 * RANKED, time_limit_s
             )
+            distinct: list[tuple[int, tuple[int, int, int], float]] = []
             for yaw, tr, iou in ranked:
+                if not any(t.component.same_placement(y, u, yaw, tr) for y, u, _ in distinct):
+                    distinct.append((yaw, tuple(tr), iou))  # type: ignore[arg-type]
+                if len(distinct) == RANKED:
+                    break
+            for yaw, tr, iou in distinct:
                 score = iou
                 trial = asm.copy()
                 tid = trial.add(t.component, yaw, tr, colours[i])
@@ -210,6 +302,7 @@ def synthesize(
                     rendered = r.rgb[vis] / 255.0 * tone[0] + tone[1]
                     diff = np.abs(picture[vis] - rendered).max(axis=1)
                     score -= COLOUR_WEIGHT * float(diff.mean())
+                ranked_here.append((score, (i, yaw, tr)))
                 if best is None or score > best[0]:
                     best = (score, i, (yaw, tr), {"iou": iou, "timed_out": timed_out})
         if best is None:
@@ -222,13 +315,18 @@ def synthesize(
                 left[i] = 0
             break
         _, i, (yaw, tr), extra = best
-        new_id, attach = asm.add_checked(types[i].component, yaw, tr)
+        try:
+            new_id, attach = asm.add_checked(types[i].component, yaw, tr)
+        except BrickGeomError:  # a forced choice that does not fit
+            return preds, taken, options
+        taken.append((i, yaw, tr))
+        options.append([f for _, f in sorted(ranked_here, key=lambda x: -x[0])])
         unexplained &= _bg.render(asm, cam, w, h, line_px=0.0).ids != new_id
         left[i] -= 1
         entry = types[i].entry
         ref = ctx.step.components[entry].component
         preds.append(Prediction(entry, ref, yaw, tr, attach=attach, extra=extra))
-    return preds
+    return preds, taken, options
 
 
 class SynthesisPredictor(Predictor):

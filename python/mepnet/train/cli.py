@@ -3,6 +3,7 @@
     python -m mepnet.train --data DIR [DIR ...] --out OUT [--model slim|paper|tiny|FILE.json]
                            [--val-dir DIR] [--config FILE.json] [--resume] [--<setting> VALUE ...]
     python -m mepnet.train --out OUT --steps N            # manuals generated on the fly
+    python -m mepnet.train ... --head direct3d             # the paper's Direct3D baseline
     torchrun --nproc_per_node=N -m mepnet.train ...       # DistributedDataParallel
 
 Settings are the fields of :class:`TrainConfig`: defaults, then ``--config FILE.json``, then
@@ -26,7 +27,7 @@ from typing import Any
 
 from mepnet.cli import ArgumentParser
 from mepnet.cli import run as run_cli
-from mepnet.detector.config import ModelConfig
+from mepnet.detector.config import HEADS, ModelConfig
 from mepnet.errors import CheckpointError, ConfigError, OutputError
 from mepnet.files import MANIFEST, atomic_write_json
 from mepnet.stage2.base import LIFTS
@@ -76,6 +77,7 @@ CHOICES = {
     "schedule": ("cosine", "plateau"),
     "device": ("auto", "cpu", "cuda"),
     "val_lift": LIFTS,
+    "head": HEADS,
 }
 
 

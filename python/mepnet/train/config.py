@@ -12,7 +12,7 @@ from typing import Any
 
 import torch
 
-from mepnet.detector.config import ModelConfig
+from mepnet.detector.config import HEADS, ModelConfig
 from mepnet.detector.weights import load_model_weights
 from mepnet.errors import ConfigError
 from mepnet.manual import iter_manual_dirs, load_manual
@@ -46,6 +46,11 @@ class TrainConfig:
         "docs/styles.md; targets stay exact)",
     )
     model: str = _f("slim", "model config: slim, paper, tiny or a JSON file")
+    head: str = _f(
+        "mepnet",
+        "the network: mepnet (the detector) or direct3d (the paper's Direct3D baseline: the "
+        "same encoders, 3D translation and rotation regressed)",
+    )
     model_set: tuple[str, ...] = _f((), "model config overrides KEY=VALUE (VALUE as JSON)")
     init: str | None = _f(
         None,
@@ -131,6 +136,7 @@ def model_config_of(cfg: TrainConfig) -> ModelConfig:
     except TypeError as e:
         raise ConfigError(f"{cfg.model}: not a valid model config ({e})") from None
     d = mc.to_dict()
+    d["head"] = cfg.head
     for item in cfg.model_set:
         key, sep, value = item.partition("=")
         if not sep or key not in d:
@@ -157,6 +163,11 @@ def config_diff(saved: dict[str, Any], now: ModelConfig, what: str) -> str:
 def load_init(path: str, model_cfg: ModelConfig) -> dict[str, torch.Tensor]:
     """The weights of ``--init``, checked against the run's model config."""
     tensors, saved = load_model_weights(path)
+    head = saved.get("head", "mepnet")
+    if head != model_cfg.head:
+        raise ConfigError(
+            f"{path}: --init weights are a {head} network, the run trains {model_cfg.head} (--head)"
+        )
     diff = config_diff(saved, model_cfg, "weights")
     if diff:
         raise ConfigError(f"{path}: --init weights do not fit the model config ({diff})")
@@ -204,6 +215,8 @@ def validate(cfg: TrainConfig) -> None:
         raise ConfigError(f"--val-cd-points must be at least 1, got {cfg.val_cd_points}")
     if not cfg.data and cfg.steps < 1:
         raise ConfigError("on-the-fly generation (no --data) needs --steps")
+    if cfg.head not in HEADS:
+        raise ConfigError(f"--head must be {' or '.join(HEADS)}, got {cfg.head!r}")
     if cfg.val_lift not in LIFTS:
         raise ConfigError(f"--val-lift must be {' or '.join(LIFTS)}, got {cfg.val_lift!r}")
     if cfg.init is not None and not Path(cfg.init).is_file():

@@ -30,6 +30,7 @@ from torch.utils.data import Dataset, DistributedSampler, IterableDataset, get_w
 from mepnet import _brickgeom as _bg
 from mepnet.cli import quiet_interrupts_in_workers
 from mepnet.detector.config import ModelConfig
+from mepnet.detector.direct3d import add_translation_targets
 from mepnet.detector.targets import StepSample, collate, make_sample
 from mepnet.manual import (
     ComponentRef,
@@ -62,9 +63,10 @@ def training_sample(
     styles: float = 0.0,
 ) -> StepSample:
     """Inputs and targets of a step on its true base shape (``components``: the manual's true
-    components, when the caller keeps them). With probability ``styles`` the step is drawn
-    again in a style drawn from ``rng`` (:func:`mepnet.styles.restyled_step`): the picture
-    changes, the targets stay exact."""
+    components, when the caller keeps them); Direct3D's translations too when ``cfg.head`` is
+    ``direct3d``. With probability ``styles`` the step is drawn again in a style drawn from
+    ``rng`` (:func:`mepnet.styles.restyled_step`): the picture changes, the targets stay
+    exact."""
     build, k = key
     answers = answers_of(manual)
     comps = components if components is not None else answers.components(manual)
@@ -76,7 +78,7 @@ def training_sample(
         from mepnet.styles import restyled_step
 
         image = restyled_step(manual, key, rng, comps)
-    return make_sample(
+    sample = make_sample(
         page.steps[k],
         cfg,
         base=truth.assembly_before(k, comps),
@@ -86,6 +88,9 @@ def training_sample(
         rng=rng,
         image=image,
     )
+    if cfg.head == "direct3d":
+        return add_translation_targets(sample, page.steps[k], truth.truth(k), cfg)
+    return sample
 
 
 def worker_init(_worker_id: int) -> None:

@@ -308,15 +308,16 @@ def train(
         if d.main and cfg.val_dir is not None:
             from mepnet.eval import evaluate
             from mepnet.stage2.detector import MEPNetPredictor
+            from mepnet.stage2.direct3d import Direct3DPredictor
 
             t0 = time.perf_counter()
             runner = model if not cuda else _OnDevice(model, d.device)
-            r = evaluate(
-                cfg.val_dir,
-                MEPNetPredictor(runner, model_cfg, lift=cfg.val_lift),  # type: ignore[arg-type]
-                cd_points=cfg.val_cd_points,
-                progress=False,
+            predictor = (
+                Direct3DPredictor(runner, model_cfg)  # type: ignore[arg-type]
+                if model_cfg.head == "direct3d"
+                else MEPNetPredictor(runner, model_cfg, lift=cfg.val_lift)  # type: ignore[arg-type]
             )
+            r = evaluate(cfg.val_dir, predictor, cd_points=cfg.val_cd_points, progress=False)
             model.train()
             keys = ("component_acc", "step_acc", "component_cd", "step_cd", "n_failures")
             metrics = {"step": step, "split": "val", **{k: r[k] for k in keys}}

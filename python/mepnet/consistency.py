@@ -1,0 +1,287 @@
+"""How well a predicted step explains its picture: a confidence per step and flags for what
+nothing explains (issue 14's plan checks).
+
+The confidence of a step is the overlap (IoU) between the pixels its predicted components
+cover, drawn over the shape built so far with the step's camera, and the pixels where the
+step's picture changed (:func:`mepnet.stage2.synthesis.step_change`: against the manual's own
+earlier pictures of the same view where there are any, else against the base as mepnet draws
+it). 1 when the predicted parts cover exactly what changed; low when the picture shows new parts
+where nothing was placed, or parts were placed where the picture shows nothing new.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from mepnet import _brickgeom as _bg
+from mepnet.errors import MepnetError
+from mepnet.geom import BrickGeomError
+from mepnet.stage2.base import Prediction, StepContext
+from mepnet.stage2.synthesis import _max_filter, step_change, step_picture
+from mepnet.state import CHANGE_THRESHOLD
+
+#: A step whose confidence is below this is flagged: its picture is not explained.
+UNEXPLAINED = 0.5
+
+
+@dataclass
+class StepCheck:
+    """A step's confidence (None: it could not be checked) and flags."""
+
+    confidence: float | None
+    flags: list[str] = field(default_factory=list)
+
+
+def check_step(ctx: StepContext, preds: list[Prediction], shape: _bg.Assembly) -> StepCheck:
+    """The confidence and flags of a predicted step: ``ctx`` the step as it was predicted (its
+    base the shape before the step), ``shape`` the shape after it (the base and the placed
+    predictions, in that order)."""
+    flags = []
+    missing = sum(1 for p in preds if not p.placed or p.failure is not None)
+    if missing:
+        flags.append(f"{missing} of {len(preds)} components not placed")
+    if ctx.step.camera is None:
+        return StepCheck(None, [*flags, "no camera"])
+    w, h = ctx.image_size
+    if w != h:
+        return StepCheck(None, flags)
+    try:
+        change = step_change(ctx, step_picture(ctx))[0] > CHANGE_THRESHOLD
+    except MepnetError:
+        return StepCheck(None, flags)
+    ids = _bg.render(shape, ctx.camera, w, h, line_px=0.0).ids
+    new = ids >= len(ctx.base)
+    union = int((new | change).sum())
+    confidence = float((new & change).sum() / union) if union else 1.0
+    if confidence < UNEXPLAINED:
+        flags.append(
+            f"the picture is not explained: the placed parts cover {100 * confidence:.0f}% "
+            "of what changed"
+        )
+    return StepCheck(round(confidence, 4), flags)
+
+
+# ---------------------------------------------------------------------------------------------
+# Repair: earlier placements that later pictures contradict
+
+
+#: How far (px) the picture's silhouette is widened before a drawn pixel outside it counts as
+#: a contradiction (and narrowed before a pixel inside counts as unexplained).
+SILHOUETTE_SLACK = 2
+#: An earlier instance is suspect when at least this many of its drawn pixels, and this share
+#: of them, lie where the step's picture shows the page.
+SUSPECT_PX, SUSPECT_SHARE = 15, 0.2
+#: Placements tried per suspect (ranked by their overlap with what is unexplained).
+REPAIR_CANDIDATES = 8
+#: Pictures a repair is judged on: the suspect's own step and the latest ones.
+REPAIR_VIEWS = 4
+#: A repair is made when it lowers the pictures' disagreement by this many pixels and share.
+REPAIR_GAIN_PX, REPAIR_GAIN_SHARE = 20, 0.1
+#: Suspects looked at per step.
+REPAIRS_PER_STEP = 2
+
+
+@dataclass(frozen=True)
+class Placement:
+    """A placed instance of the plan: which step (1-based) and prediction (index in the
+    step's predictions) it came from, the component and its pose and colour."""
+
+    step: int
+    pred: int
+    component: _bg.Component
+    yaw: int
+    t: tuple[int, int, int]
+    colour: int
+
+
+@dataclass
+class View:
+    """A step's picture as the repair sees it: the camera and the picture's silhouette,
+    widened and narrowed by :data:`SILHOUETTE_SLACK`."""
+
+    step: int
+    camera: _bg.Camera
+    wide: np.ndarray
+    narrow: np.ndarray
+    #: the page's colour (RGB 0-255)
+    page: np.ndarray
+
+    @classmethod
+    def of(cls, step: int, camera: _bg.Camera, rgb: np.ndarray) -> View:
+        """The view of a step picture ((H, W, 3) uint8)."""
+        fg, page = silhouette(rgb)
+        wide = _max_filter(fg.astype(np.uint8), SILHOUETTE_SLACK).astype(bool)
+        narrow = ~_max_filter((~fg).astype(np.uint8), SILHOUETTE_SLACK).astype(bool)
+        return cls(step, camera, wide, narrow, page)
+
+    def drawn(self, shape: _bg.Assembly, w: int, h: int) -> tuple[np.ndarray, np.ndarray]:
+        """The shape drawn with the view's camera: its instance map, and where it is drawn in
+        colours the page could not be mistaken for (a white part on white paper is told from
+        the page only by outlines other renderers may not draw: no evidence either way)."""
+        r = _bg.render(shape, self.camera, w, h, line_px=0.0)
+        unlike = np.abs(r.rgb.astype(np.float32) - self.page).max(axis=2) > PAGE_LIKE
+        return r.ids, (r.ids >= 0) & unlike
+
+
+#: A drawn colour this close (0-255, any channel) to the page's is no evidence of the model.
+PAGE_LIKE = 30.0
+
+
+def silhouette(rgb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(H, W) bool: the model in a step picture ((H, W, 3) uint8), with the page-coloured
+    regions the page around it does not reach (:func:`mepnet._brickgeom.foreground_mask`); and
+    the page's colour (RGB)."""
+    fg, colour = _bg.foreground_mask(np.ascontiguousarray(rgb), PAGE_LIKE)
+    return fg, np.asarray(colour, np.float32)
+
+
+@dataclass(frozen=True)
+class Revision:
+    """An earlier placement changed because a later picture contradicted it."""
+
+    #: the step (1-based) whose placement changed, and the prediction's index in it
+    step: int
+    pred: int
+    before: tuple[int, tuple[int, int, int]]
+    after: tuple[int, tuple[int, int, int]]
+    #: the step whose picture showed the contradiction
+    found_at: int
+    #: pixels of disagreement over the pictures judged, before and after
+    disagreement: tuple[int, int]
+
+
+def build(placements: list[Placement]) -> _bg.Assembly | None:
+    """The shape of ``placements`` added in order, each checked (connected and collision-free
+    when it is added); None when one is not valid."""
+    asm = _bg.Assembly()
+    for p in placements:
+        try:
+            asm.check(p.component, p.yaw, p.t)
+            asm.add(p.component, p.yaw, p.t, p.colour)
+        except BrickGeomError:
+            return None
+    return asm
+
+
+def disagreement(placements: list[Placement], views: list[View], w: int, h: int) -> list[int]:
+    """Per view, the pixels where the plan and the picture disagree: drawn where the picture
+    shows the page, or not drawn where it shows the model (the shape as it was after the
+    view's step; an invalid shape disagrees everywhere)."""
+    out = []
+    for v in views:
+        shape = build([p for p in placements if p.step <= v.step])
+        if shape is None:
+            out.append(w * h)
+            continue
+        ids, seen = v.drawn(shape, w, h)
+        out.append(int((seen & ~v.wide).sum() + (v.narrow & (ids < 0)).sum()))
+    return out
+
+
+def suspects(
+    ids: np.ndarray, seen: np.ndarray, view: View, placements: list[Placement]
+) -> list[int]:
+    """Indices into ``placements`` of instances from earlier steps drawn where ``view``'s
+    picture shows the page (``ids``, ``seen``: :meth:`View.drawn` of the shape, ids in
+    placement order), worst first."""
+    bad = np.bincount(ids[seen & ~view.wide], minlength=len(placements))
+    drawn = np.bincount(ids[ids >= 0], minlength=len(placements))
+    out = [
+        i
+        for i in np.argsort(-bad)
+        if bad[i] >= SUSPECT_PX
+        and bad[i] >= SUSPECT_SHARE * drawn[i]
+        and placements[i].step < view.step
+    ]
+    return [int(i) for i in out[:REPAIRS_PER_STEP]]
+
+
+def repair(
+    placements: list[Placement], views: list[View], w: int, h: int
+) -> tuple[list[Placement], list[Revision]]:
+    """Re-place the earlier instances the latest view's picture contradicts (:func:`suspects`):
+    each is taken out and the placements that best explain what the pictures show and nothing
+    explains (:func:`mepnet._brickgeom.abys_ranked` on the latest view and on the suspect's own
+    step) are tried in its place; one that keeps every placement valid in order and lowers the
+    disagreement over the suspect's own picture and the latest ones (:func:`disagreement`) by
+    :data:`REPAIR_GAIN_PX` pixels and :data:`REPAIR_GAIN_SHARE`, without raising it on any
+    of them, replaces it. Returns the
+    placements and the revisions made."""
+    if not views or not placements:
+        return placements, []
+    latest = views[-1]
+    shape = build(placements)
+    if shape is None:
+        return placements, []
+    ids, seen = latest.drawn(shape, w, h)
+    revisions: list[Revision] = []
+    for i in suspects(ids, seen, latest, placements):
+        sus = placements[i]
+        judged = [v for v in views if v.step == sus.step] + [
+            v for v in views[-REPAIR_VIEWS + 1 :] if v.step != sus.step
+        ]
+        before_views = disagreement(placements, judged, w, h)
+        before = sum(before_views)
+        rest = placements[:i] + placements[i + 1 :]
+        rest_shape = build(rest)
+        if rest_shape is None:
+            continue  # later parts stand on it: left as it is
+        tried: set[tuple[int, tuple[int, int, int]]] = {(sus.yaw, sus.t)}
+        best: tuple[int, list[int], Placement] | None = None
+        for v in {
+            latest.step: latest,
+            **{x.step: x for x in judged if x.step == sus.step},
+        }.values():
+            drawn = _bg.render(rest_shape, v.camera, w, h, line_px=0.0).ids >= 0
+            unexplained = v.narrow & ~drawn
+            if not unexplained.any():
+                continue
+            ranked, _ = _bg.abys_ranked(
+                rest_shape, v.camera, w, h, sus.component, unexplained, REPAIR_CANDIDATES, 1.0
+            )
+            for yaw, t, _iou in ranked:
+                if (yaw, tuple(t)) in tried:
+                    continue
+                tried.add((yaw, tuple(t)))
+                moved = Placement(sus.step, sus.pred, sus.component, yaw, tuple(t), sus.colour)
+                trial = placements[:i] + [moved] + placements[i + 1 :]
+                per_view = disagreement(trial, judged, w, h)
+                if best is None or sum(per_view) < best[0]:
+                    best = (sum(per_view), per_view, moved)
+        if best is None:
+            continue
+        after, after_views, moved = best
+        # better over the pictures judged, and worse on none of them (the suspect's own step
+        # placed it to explain its picture)
+        if before - after >= max(REPAIR_GAIN_PX, REPAIR_GAIN_SHARE * before) and all(
+            a <= b for a, b in zip(after_views, before_views, strict=True)
+        ):
+            placements = placements[:i] + [moved] + placements[i + 1 :]
+            revisions.append(
+                Revision(
+                    sus.step,
+                    sus.pred,
+                    (sus.yaw, sus.t),
+                    (moved.yaw, moved.t),
+                    latest.step,
+                    (before, after),
+                )
+            )
+    return placements, revisions
+
+
+__all__ = [
+    "UNEXPLAINED",
+    "Placement",
+    "Revision",
+    "StepCheck",
+    "View",
+    "build",
+    "check_step",
+    "disagreement",
+    "repair",
+    "silhouette",
+    "suspects",
+]

@@ -1,0 +1,118 @@
+"""mepnet.consistency: per-step confidence and flags, and earlier placements that later pictures
+contradict, re-placed."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import generate_manuals
+from mepnet import _brickgeom as _bg
+from mepnet.consistency import (
+    Placement,
+    View,
+    build,
+    check_step,
+    disagreement,
+    repair,
+)
+from mepnet.manual import answers_of, iter_manual_dirs, load_manual
+from mepnet.plan import plan_json, run_manual
+from mepnet.stage2 import make_predictor
+from mepnet.stage2.base import EarlierStep, Prediction, StepContext
+
+
+@pytest.fixture(scope="module")
+def manual_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return next(iter(iter_manual_dirs(generate_manuals(tmp_path_factory.mktemp("cs"), 1, 31337))))
+
+
+def _truth(manual_dir: Path):
+    m = load_manual(manual_dir)
+    comps = answers_of(m).components(m)
+    ans = m.answers.build(None)  # type: ignore[union-attr]
+    placements = []
+    for k in range(len(m.main.steps)):
+        for j, inst in enumerate(ans.truth(k).placed()):
+            placements.append(
+                Placement(k + 1, j, comps[inst.component], inst.yaw, tuple(inst.t), inst.colour)
+            )
+    return m, comps, ans, placements
+
+
+def test_a_right_step_is_confident_and_a_wrong_one_is_flagged(manual_dir: Path):
+    m, comps, ans, placements = _truth(manual_dir)
+    steps = m.main.steps
+    k = len(steps) - 1
+    base = build([p for p in placements if p.step <= k])
+    assert base is not None
+    earlier = tuple(
+        EarlierStep(steps[i], sum(1 for p in placements if p.step <= i + 1)) for i in range(k)
+    )
+    ctx = StepContext(steps[k], base, comps, m.image_size, earlier)
+    mine = [p for p in placements if p.step == k + 1]
+    preds = [Prediction(0, ans.truth(k).placed()[0].component, p.yaw, p.t) for p in mine]
+    right = build(placements)
+    good = check_step(ctx, preds, right)  # type: ignore[arg-type]
+    assert good.confidence is not None and good.confidence > 0.8 and not good.flags
+    # the step's parts left out: nothing explains what changed
+    bad = check_step(ctx, [Prediction(0, preds[0].component, None, None)], base.copy())
+    assert bad.confidence is not None and bad.confidence < 0.1
+    assert any("not placed" in f for f in bad.flags)
+    assert any("not explained" in f for f in bad.flags)
+
+
+def _moved(placements: list[Placement], view: View) -> tuple[int, Placement] | None:
+    """An earlier instance moved to another valid place where the picture shows the page."""
+    w = h = 256
+    for i in range(len(placements) - 1, -1, -1):
+        p = placements[i]
+        if p.step >= view.step:
+            continue
+        rest = placements[:i] + placements[i + 1 :]
+        rest_shape = build(rest)
+        if rest_shape is None:
+            continue
+        page = ~view.wide
+        ranked, _ = _bg.abys_ranked(rest_shape, view.camera, w, h, p.component, page, 8, 5.0)
+        for yaw, t, _iou in ranked:
+            moved = Placement(p.step, p.pred, p.component, yaw, tuple(t), p.colour)
+            if p.component.same_placement(p.yaw, p.t, yaw, tuple(t)):
+                continue
+            trial = placements[:i] + [moved] + placements[i + 1 :]
+            if build(trial) is not None and disagreement(trial, [view], w, h)[0] > 300:
+                return i, moved
+    return None
+
+
+def test_an_earlier_placement_the_pictures_contradict_is_put_back(manual_dir: Path):
+    m, _, _, placements = _truth(manual_dir)
+    steps = m.main.steps
+    views = [View.of(k + 1, steps[k].camera_object(), steps[k].image()) for k in range(len(steps))]
+    found = _moved(placements, views[-1])
+    assert found is not None, "no earlier instance could be moved for the test"
+    i, moved = found
+    wrong = placements[:i] + [moved] + placements[i + 1 :]
+    fixed, revisions = repair(wrong, views, 256, 256)
+    assert len(revisions) >= 1
+    r = next(r for r in revisions if (r.step, r.pred) == (moved.step, moved.pred))
+    assert r.disagreement[1] < r.disagreement[0]
+    truth = placements[i]
+    assert truth.component.same_placement(truth.yaw, truth.t, fixed[i].yaw, fixed[i].t)
+    # the true plan needs nothing
+    same, none = repair(placements, views, 256, 256)
+    assert none == [] and same == placements
+
+
+def test_the_plan_records_confidence_flags_and_revisions(manual_dir: Path):
+    man = load_manual(manual_dir)
+    run = run_manual(man, make_predictor("oracle"))
+    doc = plan_json(run)
+    for s in doc["steps"]:
+        assert 0.0 <= s["confidence"] <= 1.0
+        assert isinstance(s["flags"], list) and s["revisions"] == []
+    assert np.mean([s["confidence"] for s in doc["steps"]]) > 0.8
+    # teacher-forced runs and repair=False make no revisions
+    off = run_manual(man, make_predictor("oracle"), repair=False)
+    assert all(s.revisions == [] and s.repair_seconds == 0.0 for b in off.builds for s in b.steps)
