@@ -29,7 +29,7 @@ import numpy as np
 
 from mepnet import _brickgeom as _bg
 from mepnet.errors import MepnetError
-from mepnet.files import atomic_write_text
+from mepnet.files import atomic_write_bytes
 from mepnet.geom import BrickGeomError, manual_camera
 from mepnet.manual import Build, ComponentRef, Manual, Step, make_camera
 
@@ -74,7 +74,8 @@ def write_report(
         page = _page(
             "mepnet plan report", f"<p class='error'>The report failed: {_e(repr(err))}</p>"
         )
-    atomic_write_text(folder / REPORT_NAME, page)
+    # file names need not be UTF-8 (undecodable bytes arrive as surrogates): shown escaped
+    atomic_write_bytes(folder / REPORT_NAME, page.encode("utf-8", errors="backslashreplace"))
 
 
 def report_html(
