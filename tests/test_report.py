@@ -162,10 +162,11 @@ def test_summary_figures_equal_the_plan(plan_folder: Path):
     assert f"({100 * plan['correct'] / total:.1f}%)" in s["accuracy"]
     assert s["exact"] == ("yes" if plan["exact"] else "no")
     assert s["cameras"] == f"{len(steps)} given"
-    assert s["flagged"] == "—"  # the plan has no flags yet
+    all_steps = [*(t for b in plan["submodules"] for t in b["steps"]), *plan["steps"]]
+    assert s["flagged"] == f"{sum(1 for t in all_steps if t['flags'])} of {len(all_steps)}"
 
 
-def test_steps_show_poses_and_missing_fields_as_dashes(plan_folder: Path):
+def test_steps_show_poses_confidence_flags_and_revisions(plan_folder: Path):
     plan = json.loads((plan_folder / "plan.json").read_text())
     page = Page((plan_folder / "report.html").read_text())
     for sid, step in zip(
@@ -177,9 +178,11 @@ def test_steps_show_poses_and_missing_fields_as_dashes(plan_folder: Path):
         for c in step["components"]:
             assert "(" + ", ".join(str(v) for v in c["lattice"]) + ")" in text
             assert "(" + ", ".join(f"{v:.3g}" for v in c["ldu"]["position"]) + ")" in text
-        # confidence, flags and revisions are not in today's plan: shown as "—"
-        for key in ("confidence", "flags", "revisions"):
-            assert f"{key}—" in text, (sid, key)
+        # the step's confidence as a number, its flags and revisions ("none" when empty)
+        assert f"confidence{step['confidence']:.3g}" in text, sid
+        for key in ("flags", "revisions"):
+            shown = "none" if not step[key] else ""
+            assert f"{key}{shown}" in text, (sid, key)
 
 
 def test_bad_steps_show_as_such_and_new_fields_need_no_report_change(example_run: Any):
