@@ -305,6 +305,20 @@ def test_autoregressive_metrics_count_what_a_user_gets():
         progress=False,
     )
     assert r["autoregressive_component_acc"] == 1.0 and r["manuals_exact"] == 1.0
+    # exact predictions: nothing for the repair to revise; the breakdown per manual adds up
+    assert r["repair"] is True and r["revisions"] == 0
+    (m,) = r["per_manual"]
+    assert m["correct"] == m["components"] == r["n_components"] and m["wrong_steps"] == 0
+    assert sum(r["errors"].values()) == 0
+    off = evaluate(
+        bundled_manual(),
+        make_predictor("oracle"),
+        autoregressive=True,
+        cd_points=200,
+        progress=False,
+        repair=False,
+    )
+    assert off["repair"] is False and off["autoregressive_component_acc"] == 1.0
     run = run_manual(load_manual(bundled_manual()), make_predictor("oracle"))
     right, total = accuracy(run)
     assert right == total == r["n_components"] and built_exactly(run) is True
@@ -315,3 +329,38 @@ def test_autoregressive_metrics_count_what_a_user_gets():
     step.predictions[k].t = step.placed[k][2]
     assert accuracy(run) == (total - 1, total)
     assert built_exactly(run) is False
+
+
+def test_error_kinds_say_what_went_wrong_with_each_missed_instance():
+    from mepnet.eval import ERROR_KINDS, error_kinds
+    from mepnet.manual import ComponentRef
+    from mepnet.stage2 import Prediction
+
+    brick, slope = ComponentRef(part="3001"), ComponentRef(part="3039")
+    comps = {brick: _bg.Component.primitive("3001"), slope: _bg.Component.primitive("3039")}
+    gt = [
+        (brick, 0, (0, 0, 0)),  # predicted exactly
+        (brick, 0, (8, 0, 0)),  # predicted one stud off: near
+        (slope, 0, (0, 3, 0)),  # predicted at its place, turned: rotation
+        (slope, 1, (20, 3, 0)),  # its prediction far away
+        (slope, 0, (0, 6, 0)),  # no prediction of its type left
+        (brick, 0, (0, 9, 0)),  # rests on dropped parts
+    ]
+    supported = [True, True, True, True, True, False]
+    preds = [
+        Prediction(0, brick, 0, (0, 0, 0)),
+        Prediction(0, brick, 0, (10, 0, 0)),
+        Prediction(1, slope, 2, (0, 3, 0)),
+        Prediction(1, slope, 1, (-20, 3, 0)),
+        Prediction(1, slope, None, None, failure="nothing fits"),
+    ]
+    kinds = error_kinds(preds, gt, comps, supported)
+    assert set(kinds) == set(ERROR_KINDS)
+    # the brick one stud off is near; the unsupported one is named as such, not as near/far
+    assert kinds["near"] == 1 and kinds["unsupported"] == 1
+    assert kinds["rotation"] == 1
+    # two slopes left with one pose between them: one far, one not placed
+    assert kinds["far"] == 1 and kinds["not_placed"] == 1
+    # everything predicted exactly: nothing to report
+    exact = [Prediction(0, r, y, t) for r, y, t in gt]
+    assert sum(error_kinds(exact, gt, comps, [True] * len(gt)).values()) == 0

@@ -173,6 +173,65 @@ class Scorer:
         return all_ok
 
 
+#: What went wrong with a true instance the predictor did not place exactly (``per_manual``).
+ERROR_KINDS = ("unsupported", "not_placed", "rotation", "near", "far")
+
+
+def error_kinds(
+    preds: list[Prediction],
+    gt: list[tuple[ComponentRef, int, tuple[int, int, int]]],
+    comps: dict[ComponentRef, _bg.Component],
+    supported: list[bool],
+) -> dict[str, int]:
+    """Counts, per kind of :data:`ERROR_KINDS`, the true instances of one step that no
+    prediction places exactly: ``unsupported`` (it rests only on parts dropped from a converted
+    real model: no connection-based method can place it), ``not_placed`` (no prediction of its
+    type left), ``rotation`` (a prediction of its type at its translation, turned wrongly),
+    ``near`` (the nearest prediction of its type within one stud across and one brick up or
+    down) and ``far``. Instances and predictions are paired exactly first, as the score does,
+    then each instance left with the nearest prediction of its type left."""
+    kinds = dict.fromkeys(ERROR_KINDS, 0)
+    for ref in dict.fromkeys(r for r, _, _ in gt):
+        comp = comps[ref]
+        rest = [(x.yaw, x.t) for x in preds if x.component == ref and x.t is not None]
+        missed = []
+        for (r, y, t), sup in zip(gt, supported, strict=True):
+            if r != ref:
+                continue
+            j = next(
+                (j for j, (py, pt) in enumerate(rest) if comp.same_placement(y, t, py, pt)), None
+            )
+            if j is None:
+                missed.append((y, t, sup))
+            else:
+                rest.pop(j)
+        kinds["unsupported"] += sum(1 for _, _, sup in missed if not sup)
+        missed = [(y, t) for y, t, sup in missed if sup]
+        # each missed instance paired with the nearest prediction left (closest pairs first)
+        pairs = sorted(
+            (sum((a - b) ** 2 for a, b in zip(t, pt, strict=True)), i, j)
+            for i, (_, t) in enumerate(missed)
+            for j, (_, pt) in enumerate(rest)
+        )
+        partner: dict[int, tuple[int, int, int]] = {}
+        taken: set[int] = set()
+        for _, i, j in pairs:
+            if i not in partner and j not in taken:
+                partner[i] = tuple(rest[j][1])
+                taken.add(j)
+        for i, (_, t) in enumerate(missed):
+            pt = partner.get(i)
+            if pt is None:
+                kinds["not_placed"] += 1
+            elif tuple(pt) == tuple(t):
+                kinds["rotation"] += 1
+            elif abs(pt[0] - t[0]) <= 2 and abs(pt[2] - t[2]) <= 2 and abs(pt[1] - t[1]) <= 3:
+                kinds["near"] += 1
+            else:
+                kinds["far"] += 1
+    return kinds
+
+
 def _same_shape(a: _bg.Component, b: _bg.Component) -> bool:
     """Whether two components are the same shape (a part: the same part; a submodule: the same
     bricks, whatever their order or the yaws of symmetric parts)."""
@@ -264,11 +323,14 @@ def evaluate(
     cd_points: int = 10_000,
     progress: bool = True,
     camera: str = "given",
+    repair: bool = True,
 ) -> dict[str, Any]:
     """Evaluate ``predictor`` on every manual under ``data``; returns the metrics dict.
     ``camera="estimated"``: the manuals' cameras are dropped and estimated from the pictures
     (:mod:`mepnet.cameras`); poses are then compared up to each build's frame
-    (:mod:`mepnet.frames`) and the camera errors reported."""
+    (:mod:`mepnet.frames`) and the camera errors reported. ``repair=False``: the autoregressive
+    run makes no revisions across steps (:func:`mepnet.consistency.repair`), to measure what the
+    repair buys."""
     if camera not in CAMERAS:
         raise ConfigError(f"unknown camera source '{camera}' (choose from {', '.join(CAMERAS)})")
     from tqdm import tqdm
@@ -286,7 +348,10 @@ def evaluate(
     cam_seconds: list[float] = []
     cam_failures = cam_steps = 0
     ar_right = ar_total = manuals_exact = 0
+    ar_revisions = 0
+    ar_repair_seconds: list[float] = []
     timeouts = 0
+    per_manual: list[dict[str, Any]] = []
     bar = tqdm(
         total=sum(len(m.all_steps()) * (2 if autoregressive else 1) for m in manuals),
         unit="step",
@@ -304,6 +369,9 @@ def evaluate(
             timeouts += getattr(predictor, "timeouts", 0) - before
             comps = run.components
             wrong = 0
+            seen = (scorer.components, scorer.correct, scorer.supported, scorer.supported_correct)
+            kinds = dict.fromkeys(ERROR_KINDS, 0)
+            first_wrong = 0
             for b in run.builds:
                 truth = answers.build(b.key)
                 scale = _diag([(comps[i.component], i.yaw, i.t) for i in truth.instances])
@@ -313,7 +381,12 @@ def evaluate(
                     gt = [(i.component, i.yaw, i.t) for i in s.truth.placed()]
                     supported = [v.attach != "unsupported" for v in s.truth.answers.views]
                     preds = _in_truth_frame(run, b, s)
-                    wrong += int(not scorer.step(preds, gt, comps, scale, supported))
+                    ok = scorer.step(preds, gt, comps, scale, supported)
+                    wrong += int(not ok)
+                    if not ok:
+                        first_wrong += int(s.index == 1)
+                        for k, v in error_kinds(preds, gt, comps, supported).items():
+                            kinds[k] += v
                     if s.camera is not None and s.camera.source == "estimated":
                         cam_steps += 1
                         cam_seconds.append(s.camera.seconds)
@@ -322,9 +395,35 @@ def evaluate(
                         if err is not None:
                             (cam_first if s.index == 1 else cam_later).append(err)
             mtc.append(wrong / max(len(man.all_steps()), 1))
+            n, right, sup, sup_right = (
+                now - then
+                for now, then in zip(
+                    (scorer.components, scorer.correct, scorer.supported, scorer.supported_correct),
+                    seen,
+                    strict=True,
+                )
+            )
+            per_manual.append(
+                {
+                    "manual": Path(man.path).name,
+                    "source": str(man.source.get("file") or man.source.get("model") or ""),
+                    "steps": len(man.all_steps()),
+                    "wrong_steps": wrong,
+                    "wrong_first_steps": first_wrong,
+                    "components": n,
+                    "correct": right,
+                    "supported": sup,
+                    "supported_correct": sup_right,
+                    "errors": kinds,
+                }
+            )
             if autoregressive:
                 # the plan a user gets: every step on the predictor's own earlier placements
-                ar = run_manual(source, predictor, on_step=lambda: bar.update(1))
+                ar = run_manual(source, predictor, on_step=lambda: bar.update(1), repair=repair)
+                for b in ar.builds:
+                    for s in b.steps:
+                        ar_revisions += len(s.revisions)
+                        ar_repair_seconds.append(s.repair_seconds)
                 right, total = accuracy(ar)
                 ar_right += right
                 ar_total += total
@@ -365,6 +464,11 @@ def evaluate(
         "set_cd": cd(set_cd) if autoregressive else None,
         "autoregressive_component_acc": ar_right / max(ar_total, 1) if autoregressive else None,
         "manuals_exact": manuals_exact / len(manuals) if autoregressive else None,
+        "repair": repair if autoregressive else None,
+        "revisions": ar_revisions if autoregressive else None,
+        "repair_seconds_per_step": float(np.mean(ar_repair_seconds))
+        if autoregressive and ar_repair_seconds
+        else None,
         "mtc": float(np.mean(mtc)) if mtc else None,
         "seconds_per_step": float(np.mean(scorer.seconds)) if scorer.seconds else None,
         "median_seconds_per_step": float(np.median(scorer.seconds)) if scorer.seconds else None,
@@ -381,6 +485,8 @@ def evaluate(
         if scorer.supported
         else None,
         "camera": camera,
+        "errors": {k: sum(m["errors"][k] for m in per_manual) for k in ERROR_KINDS},
+        "per_manual": per_manual,
         **_camera_metrics(camera, cam_first, cam_later, cam_seconds, cam_failures, cam_steps),
     }
 
@@ -468,6 +574,13 @@ def format_table(rows: list[dict[str, Any]]) -> str:
                 f"(the plan built on its own predictions; manuals built exactly right: "
                 f"{f(r['manuals_exact'], True)}%)"
             )
+            if r.get("repair"):
+                lines.append(
+                    f"{'  repair':14s} {r['revisions']} revisions across steps; "
+                    f"{r['repair_seconds_per_step'] or 0:.4f} s per step"
+                )
+            elif r.get("repair") is False:
+                lines.append(f"{'  repair':14s} off (--no-repair)")
     for r in rows:
         if r["predictor"] in ("abys", "oracle-abys") or r.get("n_timeouts"):
             lines.append(
@@ -495,6 +608,29 @@ def format_table(rows: list[dict[str, Any]]) -> str:
     lines.append(
         f"({rows[0]['n_manuals']} manuals, {rows[0]['n_steps']} steps, {rows[0]['n_components']} components, "
         f"{rows[0]['n_failures']} not placed; MTC in % of steps)"
+    )
+    return "\n".join(lines)
+
+
+def format_per_manual(result: dict[str, Any]) -> str:
+    """One line per manual: components right (of those supported), wrong steps (first steps
+    among them) and what went wrong (:data:`ERROR_KINDS`)."""
+    lines = [
+        f"{'manual':10s} {'source':32s} {'right':>9s} {'supp.':>7s} {'acc':>7s} "
+        f"{'wrong steps':>11s} " + " ".join(f"{k:>11s}" for k in ERROR_KINDS)
+    ]
+    for m in result["per_manual"]:
+        acc = m["supported_correct"] / m["supported"] if m["supported"] else None
+        lines.append(
+            f"{m['manual'][:10]:10s} {m['source'][:32]:32s} {m['correct']:>4d}/{m['components']:<4d} "
+            f"{m['supported']:>7d} {'-' if acc is None else f'{100 * acc:.1f}':>7s} "
+            f"{m['wrong_steps']:>5d} ({m['wrong_first_steps']} 1st) "
+            + " ".join(f"{m['errors'][k]:>11d}" for k in ERROR_KINDS)
+        )
+    e = result["errors"]
+    lines.append(
+        f"{'all':10s} {'':32s} {'':>9s} {'':>7s} {'':>7s} {'':>11s} "
+        + " ".join(f"{e[k]:>11d}" for k in ERROR_KINDS)
     )
     return "\n".join(lines)
 
@@ -536,6 +672,17 @@ def main(argv: list[str] | None = None) -> int:
         help="the cameras the manual states (default), or estimated from the pictures with the "
         "manual's dropped (poses then compared up to each build's frame; camera errors reported)",
     )
+    ap.add_argument(
+        "--no-repair",
+        action="store_true",
+        help="--autoregressive: make no revisions across steps (to measure what they buy)",
+    )
+    ap.add_argument(
+        "--per-manual",
+        action="store_true",
+        help="also print one line per manual: accuracy and what went wrong (the JSON always "
+        "has it)",
+    )
     ap.add_argument("--no-progress", action="store_true")
     args = ap.parse_args(argv)
     return run_cli("mepnet.eval", lambda: _main(args))
@@ -564,8 +711,11 @@ def _main(args: argparse.Namespace) -> int:
         args.cd_points,
         not args.no_progress,
         args.camera,
+        not args.no_repair,
     )
     print(format_table([result]))
+    if args.per_manual:
+        print(format_per_manual(result))
     if args.json:
         atomic_write_json(args.json, {"written_by": WRITER, **result})
     return 0
