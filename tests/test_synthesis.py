@@ -57,3 +57,43 @@ def test_a_stack_of_equal_parts_is_solved_as_a_whole(stack: Path, monkeypatch: p
     monkeypatch.setattr(synthesis, "FIRST_CHOICES", 1)  # the greedy alone
     greedy = run_manual(m, make_predictor("synthesis"), teacher_forced=True)
     assert step_matches(greedy, greedy.main.steps[-1]) < 3  # what the revisiting buys
+
+
+#: A 2x4 brick, then a slope standing on the ground on its own, four studs away.
+APART = """0 a slope standing apart
+1 4 0 -24 0 1 0 0 0 1 0 0 0 1 3001.dat
+0 STEP
+1 2 120 -24 40 0 0 1 0 1 0 -1 0 0 3039.dat
+0 STEP
+"""
+
+
+def test_a_part_standing_apart_on_the_ground_is_found(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+):
+    """The generator stands parts anywhere on the ground: a step whose part stands away from
+    the base is solved again with the ground searched where the picture changed."""
+    import mepnet.stage2.synthesis as synthesis
+
+    (tmp_path / "apart.ldr").write_text(APART)
+    r = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "mepnet.ldraw",
+            "to-manual",
+            str(tmp_path / "apart.ldr"),
+            "--out",
+            str(tmp_path / "m"),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert r.returncode == 0, r.stderr
+    m = load_manual(tmp_path / "m")
+    run = run_manual(m, make_predictor("synthesis"), teacher_forced=True)
+    assert step_matches(run, run.main.steps[-1]) == 1
+    monkeypatch.setattr(synthesis, "WIDE_BELOW", float("-inf"))  # the ground beside the base only
+    narrow = run_manual(m, make_predictor("synthesis"), teacher_forced=True)
+    assert step_matches(narrow, narrow.main.steps[-1]) == 0

@@ -415,6 +415,7 @@ def abys_ranked(
     mask: npt.NDArray[np.bool_],
     k: int = 8,
     time_limit_s: float = 60.0,
+    wide_ground: bool = False,
 ) -> tuple[list[tuple[int, _Int3, float]], bool]: ...
 def abys_step(
     base: Assembly,

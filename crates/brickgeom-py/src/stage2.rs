@@ -263,9 +263,11 @@ fn abys_step_py<'py>(
 }
 
 /// The `k` valid placements of `component` on `base` whose visible silhouettes best match
-/// `mask` (H, W) bool by IoU, best first: `([(yaw, t, iou), ...], timed_out)`.
+/// `mask` (H, W) bool by IoU, best first: `([(yaw, t, iou), ...], timed_out)`. The ground is
+/// searched beside the base; with `wide_ground` also wherever the part may be seen in `mask`
+/// (a placement standing away from the base scores its IoU less `DETACHED_PENALTY`).
 #[pyfunction(name = "abys_ranked")]
-#[pyo3(signature = (base, camera, width, height, component, mask, k=8, time_limit_s=60.0))]
+#[pyo3(signature = (base, camera, width, height, component, mask, k=8, time_limit_s=60.0, wide_ground=false))]
 #[allow(clippy::too_many_arguments, clippy::type_complexity)]
 fn abys_ranked_py<'py>(
     py: Python<'py>,
@@ -277,6 +279,7 @@ fn abys_ranked_py<'py>(
     mask: Bound<'py, PyAny>,
     k: usize,
     time_limit_s: f64,
+    wide_ground: bool,
 ) -> PyResult<(Vec<(u8, (i32, i32, i32), f64)>, bool)> {
     if time_limit_s.is_nan() || time_limit_s <= 0.0 {
         return Err(PyValueError::new_err(format!(
@@ -288,7 +291,17 @@ fn abys_ranked_py<'py>(
     let asm = &base.inner;
     let cam = camera.inner;
     let (ranked, timed_out) = detach_core(py, || {
-        abys_ranked(asm, &comp, &cam, width, height, &m, k, time_limit_s)
+        abys_ranked(
+            asm,
+            &comp,
+            &cam,
+            width,
+            height,
+            &m,
+            k,
+            time_limit_s,
+            wide_ground,
+        )
     })?;
     Ok((
         ranked

@@ -560,8 +560,17 @@ pub fn abys_step(
     let mut asm = base.clone();
     let mut out = Vec::new();
     for (comp, mask) in instances {
-        let (ranked, timed_out) =
-            abys_ranked(&asm, comp, camera, width, height, mask, 1, time_limit_s)?;
+        let (ranked, timed_out) = abys_ranked(
+            &asm,
+            comp,
+            camera,
+            width,
+            height,
+            mask,
+            1,
+            time_limit_s,
+            false,
+        )?;
         let best = ranked.first().copied();
         if let Some((pose, _)) = best {
             asm.add(comp.clone(), pose)?;
@@ -571,8 +580,112 @@ pub fn abys_step(
     Ok(out)
 }
 
+/// How far (lattice units) a ground placement may stand from the base shape's footprint: the
+/// generator stands parts on the ground anywhere in its build region, not only beside the base.
+const GROUND_REACH: i32 = 24;
+
+/// Where on the ground to look for placements of `comp` at `yaw` on a non-empty `base`: the
+/// base's footprint grown by the part's size (a part standing beside the base), together with
+/// every ground position whose part may project into `mask` (the mask's bounding box cast onto
+/// the ground and onto the part's top height, grown by the part's size), within
+/// [`GROUND_REACH`] of the footprint. A part standing on its own, away from the base, is found
+/// where the picture shows it.
+fn ground_search(
+    base: &Assembly,
+    comp: &Component,
+    yaw: u8,
+    camera: &Camera,
+    width: u32,
+    height: u32,
+    mask: &[bool],
+) -> (GroundSearch, Option<[i32; 4]>) {
+    let Some((lo, hi)) = base.bounds() else {
+        return (GroundSearch::Auto, None);
+    };
+    let pose = Pose::new(yaw, [0, 0, 0]);
+    let cells: Vec<[i32; 3]> = comp.voxels.iter().map(|&v| pose.apply_cell(v)).collect();
+    if cells.is_empty() {
+        return (GroundSearch::Auto, None);
+    }
+    let c_lo = [0, 2].map(|a| cells.iter().map(|c| c[a]).min().unwrap_or(0));
+    let c_hi = [0, 2].map(|a| cells.iter().map(|c| c[a]).max().unwrap_or(0));
+    let top = cells.iter().map(|c| c[1]).max().unwrap_or(0)
+        - cells.iter().map(|c| c[1]).min().unwrap_or(0)
+        + 1;
+    // the footprint grown by the part (GroundSearch::Auto)
+    let beside = [
+        lo[0] - c_hi[0] - 1,
+        hi[0] - c_lo[0] + 1,
+        lo[2] - c_hi[1] - 1,
+        hi[2] - c_lo[1] + 1,
+    ];
+    // the mask's bounding box in pixels
+    let w = width as usize;
+    let (mut u0, mut v0, mut u1, mut v1) = (usize::MAX, usize::MAX, 0usize, 0usize);
+    for (i, _) in mask.iter().enumerate().filter(|(_, &m)| m) {
+        let (u, v) = (i % w, i / w);
+        u0 = u0.min(u);
+        u1 = u1.max(u + 1);
+        v0 = v0.min(v);
+        v1 = v1.max(v + 1);
+    }
+    if u0 == usize::MAX {
+        return (GroundSearch::Auto, None);
+    }
+    let m = camera.pixel_matrix(width, height);
+    let det = m[(0, 0)] * m[(1, 2)] - m[(0, 2)] * m[(1, 0)];
+    if det.abs() < 1e-9 {
+        return (GroundSearch::Auto, None); // looking along the ground: it casts nowhere
+    }
+    let unit = crate::lattice::LDU_PER_UNIT;
+    let (mut x_lo, mut x_hi, mut z_lo, mut z_hi) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
+    for (u, v) in [(u0, v0), (u1, v0), (u0, v1), (u1, v1)] {
+        for y in [0.0, top as f64 * unit[1] as f64] {
+            let a = u as f64 - m[(0, 3)] - m[(0, 1)] * y;
+            let b = v as f64 - m[(1, 3)] - m[(1, 1)] * y;
+            let x = (a * m[(1, 2)] - m[(0, 2)] * b) / det;
+            let z = (m[(0, 0)] * b - m[(1, 0)] * a) / det;
+            x_lo = x_lo.min(x / unit[0] as f64);
+            x_hi = x_hi.max(x / unit[0] as f64);
+            z_lo = z_lo.min(z / unit[2] as f64);
+            z_hi = z_hi.max(z / unit[2] as f64);
+        }
+    }
+    let clamp = |v: f64, a: i32, b: i32| (v.max(a as f64).min(b as f64)) as i32;
+    let (fx0, fx1) = (lo[0] - GROUND_REACH, hi[0] + GROUND_REACH);
+    let (fz0, fz1) = (lo[2] - GROUND_REACH, hi[2] + GROUND_REACH);
+    let mx0 = clamp(x_lo.floor(), fx0, fx1) - c_hi[0] - 1;
+    let mx1 = clamp(x_hi.ceil(), fx0, fx1) - c_lo[0] + 1;
+    let mz0 = clamp(z_lo.floor(), fz0, fz1) - c_hi[1] - 1;
+    let mz1 = clamp(z_hi.ceil(), fz0, fz1) - c_lo[1] + 1;
+    let r = [
+        beside[0].min(mx0),
+        beside[1].max(mx1),
+        beside[2].min(mz0),
+        beside[3].max(mz1),
+    ];
+    (
+        GroundSearch::Region {
+            x0: r[0],
+            x1: r[1],
+            z0: r[2],
+            z1: r[3],
+        },
+        Some(beside),
+    )
+}
+
+/// Taken off the score of a placement standing on the ground away from the base (outside the
+/// footprint grown by the part): seen along the camera's rays, a part standing far behind the
+/// shape draws the same silhouette as one fixed onto it; the one on the shape is preferred
+/// unless the picture clearly says otherwise.
+pub const DETACHED_PENALTY: f64 = 0.15;
+
 /// The `k` valid placements of `comp` on `base` whose visible silhouettes best match `mask`
-/// (IoU), best first (ties: smaller pose), and whether the time limit cut the search short.
+/// (IoU; less [`DETACHED_PENALTY`] for a placement standing on the ground away from the base),
+/// best first (ties: smaller pose), and whether the time limit cut the search short. On a
+/// non-empty base the ground is searched beside the base, and with `wide_ground` also wherever
+/// the part may be seen in `mask` ([`ground_search`]).
 #[allow(clippy::too_many_arguments)]
 pub fn abys_ranked(
     base: &Assembly,
@@ -583,6 +696,7 @@ pub fn abys_ranked(
     mask: &[bool],
     k: usize,
     time_limit_s: f64,
+    wide_ground: bool,
 ) -> Result<(Vec<(Pose, f64)>, bool)> {
     camera.validate()?;
     let n_px = width as usize * height as usize;
@@ -598,15 +712,25 @@ pub fn abys_ranked(
     let mut scored: Vec<(f64, Pose)> = Vec::new();
     let mut timed_out = false;
     for yaw in 0..4u8 {
-        let ground = if base.is_empty() {
-            GroundSearch::Region {
+        let (ground, beside) = if base.is_empty() {
+            let all = GroundSearch::Region {
                 x0: -40,
                 x1: 40,
                 z0: -40,
                 z1: 40,
-            }
+            };
+            (all, None)
+        } else if wide_ground {
+            ground_search(base, comp, yaw, camera, width, height, mask)
         } else {
-            GroundSearch::Auto
+            (GroundSearch::Auto, None)
+        };
+        let detached = |c: &crate::assembly::Placement| {
+            c.kind == AttachKind::Ground
+                && beside.is_some_and(|b| {
+                    let t = c.pose.t;
+                    t[0] < b[0] || t[0] > b[1] || t[2] < b[2] || t[2] > b[3]
+                })
         };
         let cands = base.candidates(comp, yaw, ground)?;
         // Score in parallel, in chunks so the time limit is checked between chunks.
@@ -617,7 +741,11 @@ pub fn abys_ranked(
             }
             let scores: Vec<Result<(f64, Pose)>> = chunk
                 .par_iter()
-                .map(|c| Ok((pose_iou(comp, &c.pose, camera, &target)?, c.pose)))
+                .map(|c| {
+                    let iou = pose_iou(comp, &c.pose, camera, &target)?;
+                    let penalty = if detached(c) { DETACHED_PENALTY } else { 0.0 };
+                    Ok((iou - penalty, c.pose))
+                })
                 .collect();
             for sc in scores {
                 scored.push(sc?);

@@ -8,7 +8,8 @@ use brickgeom::colours::ColourTable;
 use brickgeom::raster::RenderOptions;
 use brickgeom::scene::{render_assembly, MeshSource};
 use brickgeom::stage2::{
-    abys_step, infer_step, rotation_class, Detection, InferOptions, TypeDetections,
+    abys_ranked, abys_step, infer_step, rotation_class, Detection, InferOptions, TypeDetections,
+    DETACHED_PENALTY,
 };
 use brickgeom::{Assembly, AttachKind, Component, GroundSearch, Pose};
 
@@ -346,4 +347,74 @@ fn mask_overrules_a_hesitant_rotation_class() {
     };
     let by_class = infer_step(&base, &cam, W, W, &types, &opts).unwrap();
     assert_eq!(by_class[0].pose.unwrap().yaw % 2, 0);
+}
+
+/// A part standing on the ground on its own, several studs from the base (the generator stands
+/// parts anywhere in its build region): the wide ground search finds it where the picture
+/// shows it, at every yaw; the search beside the base cannot.
+#[test]
+fn part_standing_alone_on_the_ground_is_found_where_the_picture_shows_it() {
+    for (yaw, t) in [(0u8, [-14, 3, 2]), (1, [12, 3, -10]), (2, [3, 3, 16])] {
+        let mut after = Assembly::new();
+        after.add(comp("3001"), Pose::new(0, [0, 3, 0])).unwrap();
+        after.add(comp("3039"), Pose::new(yaw, t)).unwrap();
+        let mut base = Assembly::new();
+        base.add(comp("3001"), Pose::new(0, [0, 3, 0])).unwrap();
+        // far from the footprint grown by the part: outside the old ground search
+        let (lo, hi) = base.bounds().unwrap();
+        assert!(t[0] < lo[0] - 5 || t[0] > hi[0] + 5 || t[2] < lo[2] - 5 || t[2] > hi[2] + 5);
+        let cam = camera_for(&after);
+        let r = render_assembly(
+            &after,
+            &cam,
+            &RenderOptions::new(W, W),
+            &ColourTable::builtin(),
+            &MeshSource::builtin(),
+        )
+        .unwrap();
+        let mask: Vec<bool> = r.ids.iter().map(|&i| i == 1).collect();
+        let narrow = abys_ranked(&base, &comp("3039"), &cam, W, W, &mask, 1, 60.0, false).unwrap();
+        assert!(narrow
+            .0
+            .first()
+            .is_none_or(|(p, _)| !comp("3039").same_placement(p, &Pose::new(yaw, t))));
+        let (ranked, _) =
+            abys_ranked(&base, &comp("3039"), &cam, W, W, &mask, 1, 60.0, true).unwrap();
+        let (pose, iou) = ranked[0];
+        // standing away from the base costs the score its penalty
+        assert!(iou > 0.9 - DETACHED_PENALTY, "yaw {yaw}: iou {iou}");
+        assert!(comp("3039").same_placement(&pose, &Pose::new(yaw, t)));
+    }
+}
+
+/// Seen along the camera's rays, a part on top of a tall stack draws nearly the silhouette of
+/// one standing on the ground far behind the stack: the part on the stack is taken.
+#[test]
+fn a_part_on_the_stack_beats_its_lookalike_on_the_ground_behind() {
+    let mut after = Assembly::new();
+    for y in [3, 6, 9, 12] {
+        after.add(comp("3001"), Pose::new(0, [0, y, 0])).unwrap();
+    }
+    after.add(comp("3660"), Pose::new(1, [1, 15, 0])).unwrap();
+    let mut base = Assembly::new();
+    for y in [3, 6, 9, 12] {
+        base.add(comp("3001"), Pose::new(0, [0, y, 0])).unwrap();
+    }
+    let cam = camera_for(&after);
+    let r = render_assembly(
+        &after,
+        &cam,
+        &RenderOptions::new(W, W),
+        &ColourTable::builtin(),
+        &MeshSource::builtin(),
+    )
+    .unwrap();
+    let mask: Vec<bool> = r.ids.iter().map(|&i| i == 4).collect();
+    let (ranked, _) =
+        abys_ranked(&base, &comp("3660"), &cam, W, W, &mask, 200, 60.0, true).unwrap();
+    let (pose, _) = ranked[0];
+    assert!(
+        comp("3660").same_placement(&pose, &Pose::new(1, [1, 15, 0])),
+        "{pose:?}"
+    );
 }

@@ -178,21 +178,54 @@ def synthesize(
     :data:`WELL_EXPLAINED`), each decision in turn is revisited: the greedy is finished again
     from each of the next :data:`FIRST_CHOICES` - 1 best choices there, and the solution whose
     parts together explain the picture best is kept (a stack of equal parts: the part that
-    best fits the whole stack is not the bottom one)."""
-    w, h = ctx.image_size
+    best fits the whole stack is not the bottom one).
+
+    Parts stand on the ground beside the base shape; when the solution explains the picture
+    worse than :data:`WIDE_BELOW`, the step is solved again with the ground searched wherever
+    the picture shows a change (a part standing on its own, away from the base: see
+    ``abys_ranked``'s ``wide_ground``), and that solution is kept when it explains the picture
+    better by :data:`WIDE_MARGIN`."""
     if not COLOUR_WEIGHT:
         picture = None
     elif picture is None:
         picture = step_picture(ctx)
     if tone is None:
         tone = np.array([[1.0, 1.0, 1.0], [0.0, 0.0, 0.0]])  # gain, bias per channel
-    preds, taken, options = _greedy(ctx, types, time_limit_s, picture, tone, [])
-    if sum(t.count for t in types) < 2:
-        return preds
+    preds, score = _solve(ctx, types, time_limit_s, picture, tone, False)
+    if score < WIDE_BELOW and len(ctx.base):
+        wide, wide_score = _solve(ctx, types, time_limit_s, picture, tone, True)
+        if wide_score > score + WIDE_MARGIN:
+            return wide
+    return preds
+
+
+#: A step explained worse than this (:func:`_explained`) is solved again with the ground
+#: searched wherever the picture changed, not only beside the base shape.
+WIDE_BELOW = 0.8
+#: ... and that solution is taken when it explains the picture better by this much (seen along
+#: the camera's rays, a part far behind the shape can mimic one fixed onto it).
+WIDE_MARGIN = 0.1
+
+
+def _solve(
+    ctx: StepContext,
+    types: list[SynthesisType],
+    time_limit_s: float,
+    picture: np.ndarray | None,
+    tone: np.ndarray,
+    wide: bool,
+) -> tuple[list[Prediction], float]:
+    """:func:`synthesize`'s greedy with its revisits, the ground searched beside the base or
+    (``wide``) wherever the picture changed; returns the predictions and how well they explain
+    the picture (:func:`_explained`)."""
+    w, h = ctx.image_size
     mask = np.zeros((h, w), bool)
     for t in types:
         mask |= t.mask
+    preds, taken, options = _greedy(ctx, types, time_limit_s, picture, tone, [], wide)
     score = _explained(ctx, preds, mask, picture, tone)
+    if sum(t.count for t in types) < 2:
+        return preds, score
     # each decision in turn: the next best choices there, the rest greedy again
     level = 0
     while score < WELL_EXPLAINED and level < len(taken):
@@ -200,14 +233,14 @@ def synthesize(
             if alt == taken[level]:
                 continue
             alt_preds, alt_taken, alt_options = _greedy(
-                ctx, types, time_limit_s, picture, tone, [*taken[:level], alt]
+                ctx, types, time_limit_s, picture, tone, [*taken[:level], alt], wide
             )
             alt_score = _explained(ctx, alt_preds, mask, picture, tone)
             if alt_score > score + 1e-6:
                 preds, score, taken = alt_preds, alt_score, alt_taken
                 options = options[: level + 1] + alt_options[level + 1 :]
         level += 1
-    return preds
+    return preds, score
 
 
 #: A multi-instance step whose parts explain the changed pixels at least this well
@@ -253,8 +286,10 @@ def _greedy(
     picture: np.ndarray | None,
     tone: np.ndarray,
     prefix: list[First],
+    wide: bool = False,
 ) -> tuple[list[Prediction], list[First], list[list[First]]]:
-    """The greedy of :func:`synthesize`, its first decisions forced to ``prefix``. Returns the
+    """The greedy of :func:`synthesize`, its first decisions forced to ``prefix``, the ground
+    searched wherever the picture changed when ``wide``. Returns the
     predictions, the decision taken at each round and each unforced round's candidates, best
     first (distinct placements: a symmetric part's equal yaws once)."""
     w, h = ctx.image_size
@@ -278,7 +313,7 @@ def _greedy(
             if forced or not left[i] or not m.any():
                 continue
             ranked, timed_out = _bg.abys_ranked(
-                asm, cam, w, h, t.component, m, 4 * RANKED, time_limit_s
+                asm, cam, w, h, t.component, m, 4 * RANKED, time_limit_s, wide_ground=wide
             )
             distinct: list[tuple[int, tuple[int, int, int], float]] = []
             for yaw, tr, iou in ranked:
