@@ -97,3 +97,37 @@ def test_a_part_standing_apart_on_the_ground_is_found(
     monkeypatch.setattr(synthesis, "WIDE_BELOW", float("-inf"))  # the ground beside the base only
     narrow = run_manual(m, make_predictor("synthesis"), teacher_forced=True)
     assert step_matches(narrow, narrow.main.steps[-1]) == 0
+
+
+#: A first step: a slope and a tile standing apart on the ground.
+FIRST_APART = """0 two parts apart
+1 2 0 -24 0 1 0 0 0 1 0 0 0 1 3039.dat
+1 19 -60 -8 40 0 0 1 0 1 0 -1 0 0 3069b.dat
+0 STEP
+"""
+
+
+def test_a_first_step_finds_its_parts_wherever_they_stand(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+):
+    """On a build's first step nothing is built yet: every part stands on the ground, the
+    second one too, wherever the picture shows it (not only beside the first)."""
+    (tmp_path / "first.ldr").write_text(FIRST_APART)
+    r = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "mepnet.ldraw",
+            "to-manual",
+            str(tmp_path / "first.ldr"),
+            "--out",
+            str(tmp_path / "m"),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert r.returncode == 0, r.stderr
+    m = load_manual(tmp_path / "m")
+    run = run_manual(m, make_predictor("synthesis"), teacher_forced=True)
+    assert step_matches(run, run.main.steps[0]) == 2

@@ -180,7 +180,8 @@ def synthesize(
     parts together explain the picture best is kept (a stack of equal parts: the part that
     best fits the whole stack is not the bottom one).
 
-    Parts stand on the ground beside the base shape; when the solution explains the picture
+    Parts stand on the ground beside the base shape (on a build's first step: anywhere the
+    picture changed); when the solution explains the picture
     worse than :data:`WIDE_BELOW`, the step is solved again with the ground searched wherever
     the picture shows a change (a part standing on its own, away from the base: see
     ``abys_ranked``'s ``wide_ground``), and that solution is kept when it explains the picture
@@ -191,8 +192,10 @@ def synthesize(
         picture = step_picture(ctx)
     if tone is None:
         tone = np.array([[1.0, 1.0, 1.0], [0.0, 0.0, 0.0]])  # gain, bias per channel
-    preds, score = _solve(ctx, types, time_limit_s, picture, tone, False)
-    if score < WIDE_BELOW and len(ctx.base):
+    # a build's first step: every part stands on the ground, wherever the picture shows it
+    first = len(ctx.base) == 0
+    preds, score = _solve(ctx, types, time_limit_s, picture, tone, first)
+    if score < WIDE_BELOW and not first:
         wide, wide_score = _solve(ctx, types, time_limit_s, picture, tone, True)
         if wide_score > score + WIDE_MARGIN:
             return wide
