@@ -615,21 +615,22 @@ def format_table(rows: list[dict[str, Any]]) -> str:
 def format_per_manual(result: dict[str, Any]) -> str:
     """One line per manual: components right (of those supported), wrong steps (first steps
     among them) and what went wrong (:data:`ERROR_KINDS`)."""
+    width = max([6, *(len(m["manual"]) for m in result["per_manual"])])
     lines = [
-        f"{'manual':10s} {'source':32s} {'right':>9s} {'supp.':>7s} {'acc':>7s} "
+        f"{'manual':{width}s} {'source':32s} {'right':>9s} {'supp.':>7s} {'acc':>7s} "
         f"{'wrong steps':>11s} " + " ".join(f"{k:>11s}" for k in ERROR_KINDS)
     ]
     for m in result["per_manual"]:
         acc = m["supported_correct"] / m["supported"] if m["supported"] else None
         lines.append(
-            f"{m['manual'][:10]:10s} {m['source'][:32]:32s} {m['correct']:>4d}/{m['components']:<4d} "
+            f"{m['manual']:{width}s} {m['source'][:32]:32s} {m['correct']:>4d}/{m['components']:<4d} "
             f"{m['supported']:>7d} {'-' if acc is None else f'{100 * acc:.1f}':>7s} "
             f"{m['wrong_steps']:>5d} ({m['wrong_first_steps']} 1st) "
             + " ".join(f"{m['errors'][k]:>11d}" for k in ERROR_KINDS)
         )
     e = result["errors"]
     lines.append(
-        f"{'all':10s} {'':32s} {'':>9s} {'':>7s} {'':>7s} {'':>11s} "
+        f"{'all':{width}s} {'':32s} {'':>9s} {'':>7s} {'':>7s} {'':>11s} "
         + " ".join(f"{e[k]:>11d}" for k in ERROR_KINDS)
     )
     return "\n".join(lines)
