@@ -427,7 +427,13 @@ def evaluate(
                 right, total = accuracy(ar)
                 ar_right += right
                 ar_total += total
-                manuals_exact += int(bool(built_exactly(ar)))
+                exact = bool(built_exactly(ar))
+                manuals_exact += int(exact)
+                per_manual[-1].update(
+                    autoregressive_correct=right,
+                    built_exactly=exact,
+                    revisions=sum(len(s.revisions) for b in ar.builds for s in b.steps),
+                )
                 motion = step_motion(ar, ar.main, ar.main.steps[0]) if ar.main.steps else None
                 placed = [
                     moved((ar.components[r], y, t, c), motion)[:3]
@@ -627,6 +633,12 @@ def format_per_manual(result: dict[str, Any]) -> str:
             f"{m['supported']:>7d} {'-' if acc is None else f'{100 * acc:.1f}':>7s} "
             f"{m['wrong_steps']:>5d} ({m['wrong_first_steps']} 1st) "
             + " ".join(f"{m['errors'][k]:>11d}" for k in ERROR_KINDS)
+            + (
+                f"  on its own {m['autoregressive_correct']}/{m['components']}"
+                f"{' exact' if m['built_exactly'] else ''}"
+                if "built_exactly" in m
+                else ""
+            )
         )
     e = result["errors"]
     lines.append(
