@@ -22,26 +22,31 @@ STACK = """0 stack of round bricks
 """
 
 
-@pytest.fixture(scope="module")
-def stack(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    d = tmp_path_factory.mktemp("stack")
-    (d / "stack.ldr").write_text(STACK)
+def manual_from_ldraw(text: str, folder: Path) -> Path:
+    """``text`` (an LDraw model) converted by ``python -m mepnet.ldraw to-manual`` into a
+    manual folder under ``folder``; its path."""
+    (folder / "model.ldr").write_text(text)
     r = subprocess.run(
         [
             sys.executable,
             "-m",
             "mepnet.ldraw",
             "to-manual",
-            str(d / "stack.ldr"),
+            str(folder / "model.ldr"),
             "--out",
-            str(d / "m"),
+            str(folder / "m"),
         ],
         capture_output=True,
         text=True,
         timeout=300,
     )
     assert r.returncode == 0, r.stderr
-    return d / "m"
+    return folder / "m"
+
+
+@pytest.fixture(scope="module")
+def stack(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return manual_from_ldraw(STACK, tmp_path_factory.mktemp("stack"))
 
 
 def test_a_stack_of_equal_parts_is_solved_as_a_whole(stack: Path, monkeypatch: pytest.MonkeyPatch):
@@ -75,23 +80,7 @@ def test_a_part_standing_apart_on_the_ground_is_found(
     the base is solved again with the ground searched where the picture changed."""
     import mepnet.stage2.synthesis as synthesis
 
-    (tmp_path / "apart.ldr").write_text(APART)
-    r = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "mepnet.ldraw",
-            "to-manual",
-            str(tmp_path / "apart.ldr"),
-            "--out",
-            str(tmp_path / "m"),
-        ],
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
-    assert r.returncode == 0, r.stderr
-    m = load_manual(tmp_path / "m")
+    m = load_manual(manual_from_ldraw(APART, tmp_path))
     run = run_manual(m, make_predictor("synthesis"), teacher_forced=True)
     assert step_matches(run, run.main.steps[-1]) == 1
     monkeypatch.setattr(synthesis, "WIDE_BELOW", float("-inf"))  # the ground beside the base only
@@ -107,27 +96,9 @@ FIRST_APART = """0 two parts apart
 """
 
 
-def test_a_first_step_finds_its_parts_wherever_they_stand(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
-):
+def test_a_first_step_finds_its_parts_wherever_they_stand(tmp_path: Path):
     """On a build's first step nothing is built yet: every part stands on the ground, the
     second one too, wherever the picture shows it (not only beside the first)."""
-    (tmp_path / "first.ldr").write_text(FIRST_APART)
-    r = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "mepnet.ldraw",
-            "to-manual",
-            str(tmp_path / "first.ldr"),
-            "--out",
-            str(tmp_path / "m"),
-        ],
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
-    assert r.returncode == 0, r.stderr
-    m = load_manual(tmp_path / "m")
+    m = load_manual(manual_from_ldraw(FIRST_APART, tmp_path))
     run = run_manual(m, make_predictor("synthesis"), teacher_forced=True)
     assert step_matches(run, run.main.steps[0]) == 2

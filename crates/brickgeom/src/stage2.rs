@@ -586,8 +586,9 @@ const GROUND_REACH: i32 = 24;
 
 /// Where on the ground to look for placements of `comp` at `yaw` on a non-empty `base`: the
 /// base's footprint grown by the part's size (a part standing beside the base), together with
-/// every ground position whose part may project into `mask` (the mask's bounding box cast onto
-/// the ground and onto the part's top height, grown by the part's size), within
+/// every ground position whose part may project into the mask (its pixel box `mask_box`, from
+/// [`mask_box`], cast onto the ground and onto the part's top height, grown by the part's
+/// size), within
 /// [`GROUND_REACH`] of the footprint. A part standing on its own, away from the base, is found
 /// where the picture shows it.
 fn ground_search(
@@ -597,7 +598,7 @@ fn ground_search(
     camera: &Camera,
     width: u32,
     height: u32,
-    mask: &[bool],
+    mask_box: Option<[usize; 4]>,
 ) -> (GroundSearch, Option<[i32; 4]>) {
     let Some((lo, hi)) = base.bounds() else {
         return (GroundSearch::Auto, None);
@@ -619,19 +620,9 @@ fn ground_search(
         lo[2] - c_hi[1] - 1,
         hi[2] - c_lo[1] + 1,
     ];
-    // the mask's bounding box in pixels
-    let w = width as usize;
-    let (mut u0, mut v0, mut u1, mut v1) = (usize::MAX, usize::MAX, 0usize, 0usize);
-    for (i, _) in mask.iter().enumerate().filter(|(_, &m)| m) {
-        let (u, v) = (i % w, i / w);
-        u0 = u0.min(u);
-        u1 = u1.max(u + 1);
-        v0 = v0.min(v);
-        v1 = v1.max(v + 1);
-    }
-    if u0 == usize::MAX {
+    let Some([u0, v0, u1, v1]) = mask_box else {
         return (GroundSearch::Auto, None);
-    }
+    };
     let m = camera.pixel_matrix(width, height);
     let det = m[(0, 0)] * m[(1, 2)] - m[(0, 2)] * m[(1, 0)];
     if det.abs() < 1e-9 {
@@ -675,6 +666,21 @@ fn ground_search(
     )
 }
 
+/// The bounding box `[u0, v0, u1, v1)` of a mask's set pixels (row major, `width` wide);
+/// None when none is set.
+fn mask_box(mask: &[bool], width: u32) -> Option<[usize; 4]> {
+    let w = width as usize;
+    let mut b: Option<[usize; 4]> = None;
+    for (i, _) in mask.iter().enumerate().filter(|(_, &m)| m) {
+        let (u, v) = (i % w, i / w);
+        b = Some(match b {
+            None => [u, v, u + 1, v + 1],
+            Some([u0, v0, u1, v1]) => [u0.min(u), v0.min(v), u1.max(u + 1), v1.max(v + 1)],
+        });
+    }
+    b
+}
+
 /// Taken off the score of a placement standing on the ground away from the base (outside the
 /// footprint grown by the part): seen along the camera's rays, a part standing far behind the
 /// shape draws the same silhouette as one fixed onto it; the one on the shape is preferred
@@ -711,6 +717,11 @@ pub fn abys_ranked(
     let target = MaskTarget::new(width, height, depth, mask.to_vec())?;
     let mut scored: Vec<(f64, Pose)> = Vec::new();
     let mut timed_out = false;
+    let bounds = if wide_ground {
+        mask_box(mask, width)
+    } else {
+        None
+    };
     for yaw in 0..4u8 {
         let (ground, beside) = if base.is_empty() {
             let all = GroundSearch::Region {
@@ -721,7 +732,7 @@ pub fn abys_ranked(
             };
             (all, None)
         } else if wide_ground {
-            ground_search(base, comp, yaw, camera, width, height, mask)
+            ground_search(base, comp, yaw, camera, width, height, bounds)
         } else {
             (GroundSearch::Auto, None)
         };

@@ -35,6 +35,19 @@ fn camera_for(asm: &Assembly) -> Camera {
         .unwrap()
 }
 
+/// The pixels where instance `id` of `after` is visible, rendered with the built-in meshes.
+fn mask_of(after: &Assembly, cam: &Camera, id: u32) -> Vec<bool> {
+    let r = render_assembly(
+        after,
+        cam,
+        &RenderOptions::new(W, W),
+        &ColourTable::builtin(),
+        &MeshSource::builtin(),
+    )
+    .unwrap();
+    r.ids.iter().map(|&i| i == id as i32).collect()
+}
+
 /// Oracle detections for the instances `new` (ids in `after`) of a step, grouped by component.
 fn oracle(after: &Assembly, new: &[u32], cam: &Camera, jitter: f64) -> Vec<TypeDetections> {
     let r = render_assembly(
@@ -301,15 +314,7 @@ fn analysis_by_synthesis_finds_a_brick_from_its_mask() {
         "test layout"
     );
     let cam = camera_for(&after);
-    let r = render_assembly(
-        &after,
-        &cam,
-        &RenderOptions::new(W, W),
-        &ColourTable::builtin(),
-        &MeshSource::builtin(),
-    )
-    .unwrap();
-    let mask: Vec<bool> = r.ids.iter().map(|&i| i == 1).collect();
+    let mask = mask_of(&after, &cam, 1);
     let out = abys_step(&base, &cam, W, W, &[(comp("3040b"), mask)], 60.0).unwrap();
     let (pose, iou, timed_out) = out[0];
     assert!(!timed_out && iou > 0.9, "iou {iou}");
@@ -364,15 +369,7 @@ fn part_standing_alone_on_the_ground_is_found_where_the_picture_shows_it() {
         let (lo, hi) = base.bounds().unwrap();
         assert!(t[0] < lo[0] - 5 || t[0] > hi[0] + 5 || t[2] < lo[2] - 5 || t[2] > hi[2] + 5);
         let cam = camera_for(&after);
-        let r = render_assembly(
-            &after,
-            &cam,
-            &RenderOptions::new(W, W),
-            &ColourTable::builtin(),
-            &MeshSource::builtin(),
-        )
-        .unwrap();
-        let mask: Vec<bool> = r.ids.iter().map(|&i| i == 1).collect();
+        let mask = mask_of(&after, &cam, 1);
         let narrow = abys_ranked(&base, &comp("3039"), &cam, W, W, &mask, 1, 60.0, false).unwrap();
         assert!(narrow
             .0
@@ -401,15 +398,7 @@ fn a_part_on_the_stack_beats_its_lookalike_on_the_ground_behind() {
         base.add(comp("3001"), Pose::new(0, [0, y, 0])).unwrap();
     }
     let cam = camera_for(&after);
-    let r = render_assembly(
-        &after,
-        &cam,
-        &RenderOptions::new(W, W),
-        &ColourTable::builtin(),
-        &MeshSource::builtin(),
-    )
-    .unwrap();
-    let mask: Vec<bool> = r.ids.iter().map(|&i| i == 4).collect();
+    let mask = mask_of(&after, &cam, 4);
     let (ranked, _) =
         abys_ranked(&base, &comp("3660"), &cam, W, W, &mask, 200, 60.0, true).unwrap();
     let (pose, _) = ranked[0];
