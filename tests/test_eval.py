@@ -364,3 +364,62 @@ def test_error_kinds_say_what_went_wrong_with_each_missed_instance():
     # everything predicted exactly: nothing to report
     exact = [Prediction(0, r, y, t) for r, y, t in gt]
     assert sum(error_kinds(exact, gt, comps, [True] * len(gt)).values()) == 0
+
+
+def test_half_oracles_swap_in_one_half_of_the_answer(manuals: Path, monkeypatch):
+    """oracle-translation hands the keypoint lift every true keypoint with the rotations of the
+    detection nearest to it; oracle-rotation the detector's keypoints with the true rotation of
+    the nearest true instance (the supplementary's ablation)."""
+    import mepnet.stage2.baselines as bl
+    from mepnet.detector.detections import TypeDetections
+    from mepnet.manual import answers_of, load_manual
+    from mepnet.stage2 import StepContext
+    from mepnet.stage2.keypoint import DetectedType
+
+    assert [
+        x for x, _ in sorted(bl._match(np.array([[0.0, 0], [10, 0]]), np.array([[9.0, 1]])))
+    ] == [1]
+    assert sorted(bl._match(np.array([[0.0, 0], [10, 0]]), np.array([[9.0, 0], [1, 0]]))) == [
+        (0, 1),
+        (1, 0),
+    ]
+    m = load_manual(sorted(manuals.iterdir())[0])
+    comps = answers_of(m).components(m)
+    answers = answers_of(m).main
+    k = next(k for k, s in enumerate(m.main.steps) if sum(c.count for c in s.components) >= 2)
+    base = _bg.Assembly()
+    for j in range(k):
+        for i in answers.truth(j).placed():
+            base.add(comps[i.component], i.yaw, i.t, i.colour)
+    step, truth = m.main.steps[k], answers.truth(k)
+    ctx = StepContext(step, base, comps, m.image_size)
+    w, h = m.image_size
+    # a fake detector: per entry its instances 3 px off the truth, every rotation class 6
+    types = []
+    for e, sc in enumerate(step.components):
+        n = len(truth.instances_of[e])
+        kp = np.array([truth.keypoint(i) for i in truth.instances_of[e]]).reshape(-1, 2) + 3.0
+        rot = np.zeros((n, 7), np.float32)
+        rot[:, 6] = 1
+        dets = TypeDetections(kp, np.ones(n, np.float32), rot, np.zeros((n, h, w), bool))
+        types.append(([e], DetectedType(e, comps[sc.component], sc.count, dets)))
+
+    class Fake:
+        def detections(self, _ctx):
+            return types, None, None
+
+    seen = []
+    monkeypatch.setattr(bl, "lift_keypoints", lambda _ctx, ts: seen.append(ts) or [])
+    bl.HalfOraclePredictor(Fake(), "translation").predict_with_answers(ctx, truth)
+    bl.HalfOraclePredictor(Fake(), "rotation").predict_with_answers(ctx, truth)
+    by_translation, by_rotation = seen
+    for e, (t1, t2) in enumerate(zip(by_translation, by_rotation, strict=True)):
+        iids = truth.instances_of[e]
+        true_kp = np.array([truth.keypoint(i) for i in iids]).reshape(-1, 2)
+        classes = [_bg.rotation_class(t1.component.symmetry, truth.instances[i].yaw) for i in iids]
+        assert np.allclose(t1.detections.keypoints, true_kp)
+        assert (t1.detections.rotations.argmax(1) == 6).all()
+        assert np.allclose(t2.detections.keypoints, true_kp + 3.0)
+        assert list(t2.detections.rotations.argmax(1)) == classes
+    with pytest.raises(ConfigError):
+        bl.HalfOraclePredictor(Fake(), "colour")

@@ -5,6 +5,8 @@ Predictors behind one interface (:mod:`.base`) and a registry (:func:`make_predi
 - ``mepnet``: the detector, then stage 2 by synthesis or the keypoint lift (:mod:`.detector`);
 - ``synthesis``: stage 2 by synthesis without a detector (:mod:`.synthesis`, the ablation);
 - ``oracle`` / ``oracle-noisy`` / ``oracle-abys``: oracles fed the answers (:mod:`.baselines`);
+- ``oracle-translation`` / ``oracle-rotation``: the detector and the keypoint lift with the true
+  positions or the true rotations swapped in (the supplementary's ablation, :mod:`.baselines`);
 - ``abys``: analysis-by-synthesis on the detector's masks (:mod:`.abys`, the paper's Table 3);
 - ``direct3d``: the paper's Direct3D baseline (:mod:`.direct3d`), from weights trained with
   ``python -m mepnet.train --head direct3d`` (``--weights``; none are shipped yet).
@@ -33,6 +35,8 @@ PREDICTORS = (
     "oracle",
     "oracle-noisy",
     "oracle-abys",
+    "oracle-translation",
+    "oracle-rotation",
     "abys",
     "direct3d",
 )
@@ -95,6 +99,12 @@ def make_predictor(
         from mepnet.stage2.synthesis import SynthesisPredictor
 
         return SynthesisPredictor(min(time_limit_s, 10.0))
+    if name in ("oracle-translation", "oracle-rotation"):
+        from mepnet.stage2.baselines import HalfOraclePredictor
+        from mepnet.stage2.detector import MEPNetPredictor
+
+        model, cfg = _load(Path(weights or bundled_weights()), "mepnet", name)
+        return HalfOraclePredictor(MEPNetPredictor(model, cfg), name.split("-", 1)[1])
     if name in ("mepnet", "abys"):
         from mepnet.stage2.detector import MEPNetPredictor
 

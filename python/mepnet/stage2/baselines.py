@@ -100,3 +100,67 @@ class OracleAbysPredictor(AnswerReader):
                 )
             )
         return preds
+
+
+def _match(a: np.ndarray, b: np.ndarray) -> list[tuple[int, int]]:
+    """Greedy one-to-one matching of the points ``a`` (N, 2) and ``b`` (M, 2), nearest pairs
+    first: (index in a, index in b)."""
+    if not len(a) or not len(b):
+        return []
+    d = np.linalg.norm(a[:, None, :] - b[None, :, :], axis=-1)
+    pairs, used_a, used_b = [], set(), set()
+    for flat in np.argsort(d, axis=None, kind="stable"):
+        i, j = divmod(int(flat), len(b))
+        if i not in used_a and j not in used_b:
+            pairs.append((i, j))
+            used_a.add(i)
+            used_b.add(j)
+    return pairs
+
+
+class HalfOraclePredictor(AnswerReader):
+    """The supplementary's ablation: the detector and the keypoint lift with one half of the
+    answer swapped in. ``swap="translation"``: every true instance's keypoint (so the lift finds
+    its true position) with the rotation probabilities and mask of the detection nearest to it
+    (uniform rotations and no mask where the detector found fewer instances);
+    ``swap="rotation"``: the detector's keypoints and masks with the true rotation class of the
+    true instance nearest to each detection."""
+
+    SWAPS = ("translation", "rotation")
+
+    def __init__(self, detector, swap: str):
+        if swap not in self.SWAPS:
+            from mepnet.errors import ConfigError
+
+            raise ConfigError(f"unknown swap '{swap}' (choose from {', '.join(self.SWAPS)})")
+        self.detector = detector
+        self.swap = swap
+        self.name = f"oracle-{swap}"
+
+    def predict_with_answers(self, ctx: StepContext, truth: StepTruth) -> list[Prediction]:
+        from mepnet.stage2.detector import share_out
+
+        types, _, _ = self.detector.detections(ctx)
+        swapped = []
+        for entries, t in types:
+            det = t.detections
+            iids = [i for e in entries for i in truth.instances_of[e]]
+            true_kp = np.array([truth.keypoint(i) for i in iids], np.float64).reshape(-1, 2)
+            true_rot = np.zeros((len(iids), 7), np.float32)
+            for j, i in enumerate(iids):
+                true_rot[j, _bg.rotation_class(t.component.symmetry, truth.instances[i].yaw)] = 1
+            pairs = _match(det.keypoints, true_kp)
+            if self.swap == "translation":
+                rot = np.full((len(iids), 7), 1.0 / 7.0, np.float32)
+                masks = np.zeros((len(iids), *det.masks.shape[1:]), bool)
+                for d, j in pairs:
+                    rot[j] = det.rotations[d]
+                    masks[j] = det.masks[d]
+                new = TypeDetections(true_kp, np.ones(len(iids), np.float32), rot, masks)
+            else:
+                rot = det.rotations.copy()
+                for d, j in pairs:
+                    rot[d] = true_rot[j]
+                new = TypeDetections(det.keypoints, det.scores, rot, det.masks)
+            swapped.append((entries, DetectedType(t.entry, t.component, t.count, new)))
+        return share_out(ctx, lift_keypoints(ctx, [t for _, t in swapped]), swapped)

@@ -94,7 +94,11 @@ class MEPNetPredictor(Predictor):
         return types, change
 
     @torch.no_grad()
-    def predict(self, ctx: StepContext) -> list[Prediction]:
+    def detections(
+        self, ctx: StepContext
+    ) -> tuple[list[tuple[list[int], DetectedType]], np.ndarray, tuple | None]:
+        """The step's detections per component type (:meth:`detect`) with the picture and the
+        tone mapping the change map was found with."""
         was_training = self.model.training
         self.model.eval()
         try:
@@ -104,34 +108,39 @@ class MEPNetPredictor(Predictor):
             # where the picture differs from the base shape (lines tolerated), at the image's
             # size; a non-square image: the change map of the network's (resized) input
             change, tone = step_change(ctx, picture) if self.use_change and w == h else (None, None)
-            types, change = self.detect(ctx, change)
-            if self.lift == "keypoint":
-                return _share_out(ctx, lift_keypoints(ctx, [t for _, t in types]), types)
-            return synthesize(
-                ctx,
-                [
-                    SynthesisType(
-                        entry=e,
-                        component=t.component,
-                        count=ctx.step.components[e].count,
-                        mask=t.detections.type_mask
-                        if t.detections.type_mask is not None
-                        else np.zeros((h, w), bool),
-                        belief=t.detections.type_prob,
-                        heat=t.detections.type_heat,
-                    )
-                    for entries, t in types
-                    for e in entries
-                ],
-                time_limit_s=self.time_limit_s,
-                picture=picture,
-                tone=tone,
-            )
+            types, _ = self.detect(ctx, change)
+            return types, picture, tone
         finally:
             self.model.train(was_training)
 
+    def predict(self, ctx: StepContext) -> list[Prediction]:
+        types, picture, tone = self.detections(ctx)
+        w, h = ctx.image_size
+        if self.lift == "keypoint":
+            return share_out(ctx, lift_keypoints(ctx, [t for _, t in types]), types)
+        return synthesize(
+            ctx,
+            [
+                SynthesisType(
+                    entry=e,
+                    component=t.component,
+                    count=ctx.step.components[e].count,
+                    mask=t.detections.type_mask
+                    if t.detections.type_mask is not None
+                    else np.zeros((h, w), bool),
+                    belief=t.detections.type_prob,
+                    heat=t.detections.type_heat,
+                )
+                for entries, t in types
+                for e in entries
+            ],
+            time_limit_s=self.time_limit_s,
+            picture=picture,
+            tone=tone,
+        )
 
-def _share_out(
+
+def share_out(
     ctx: StepContext, preds: list[Prediction], types: list[tuple[list[int], DetectedType]]
 ) -> list[Prediction]:
     """The keypoint lift's predictions of a component type handed to the callout entries that
