@@ -134,7 +134,64 @@ def step_change(ctx: StepContext, picture: np.ndarray) -> tuple[np.ndarray, np.n
         np.minimum(
             change, np.where(trusted, previous_change(image, picture_before), 1.0), out=change
         )
-    return tolerate_lines(change, outline), tone
+    change = tolerate_lines(change, outline)
+    fill_enclosed(change, picture, ctx, None if before is None else before[0])
+    return change, tone
+
+
+#: A picture's colour this close to the page's (0-255, any channel) reads as page.
+PAGE_LIKE = 30.0
+
+
+def fill_enclosed(
+    change: np.ndarray,
+    picture: np.ndarray,
+    ctx: StepContext,
+    picture_before: np.ndarray | None,
+) -> None:
+    """Mark as changed (in place) the page-coloured regions of the picture that the page around
+    the drawing does not reach (:func:`mepnet._brickgeom.foreground_mask`), where the base shape
+    leaves the page bare and a change borders them: the faces of a white part on white paper,
+    told from the page only by their outlines and shading, which another renderer may draw
+    lighter than ours (then only the outlines read as changed). A region already enclosed in
+    the previous picture (``picture_before``, (3, H, W) seen with this step's camera: a gap
+    under an arch) is left alone."""
+    w, h = ctx.image_size
+    rgb = np.ascontiguousarray(np.clip(picture * 255.0 + 0.5, 0, 255).astype(np.uint8))
+    fg, page = _bg.foreground_mask(rgb, PAGE_LIKE)
+    page_like = np.abs(rgb.astype(np.float32) - np.asarray(page, np.float32)).max(axis=2)
+    hole = fg & (page_like <= PAGE_LIKE)
+    if not hole.any():
+        return
+    if len(ctx.base):
+        hole &= _bg.render(ctx.base, ctx.camera, w, h, line_px=0.0).ids < 0
+    if picture_before is not None:
+        prev = np.ascontiguousarray(
+            np.clip(picture_before.transpose(1, 2, 0) * 255.0 + 0.5, 0, 255).astype(np.uint8)
+        )
+        fg_prev, page_prev = _bg.foreground_mask(prev, PAGE_LIKE)
+        like_prev = np.abs(prev.astype(np.float32) - np.asarray(page_prev, np.float32)).max(2)
+        hole &= ~(fg_prev & (like_prev <= PAGE_LIKE))
+    seed = change > CHANGE_THRESHOLD
+    grown = _reconstruct(seed, hole)
+    change[grown] = np.maximum(change[grown], 1.0)
+
+
+def _reconstruct(seed: np.ndarray, within: np.ndarray) -> np.ndarray:
+    """The pixels of ``within`` connected (4-neighbourhood) to ``seed`` through ``within``."""
+    grown = np.zeros_like(within)
+    front = seed.copy()
+    while True:
+        near = front.copy()
+        near[1:] |= front[:-1]
+        near[:-1] |= front[1:]
+        near[:, 1:] |= front[:, :-1]
+        near[:, :-1] |= front[:, 1:]
+        new = near & within & ~grown
+        if not new.any():
+            return grown
+        grown |= new
+        front = new
 
 
 def previous_picture(ctx: StepContext) -> tuple[np.ndarray, np.ndarray] | None:
