@@ -64,6 +64,34 @@ def test_a_stack_of_equal_parts_is_solved_as_a_whole(stack: Path, monkeypatch: p
     assert step_matches(greedy, greedy.main.steps[-1]) < 3  # what the revisiting buys
 
 
+#: A wall of two 1x6 bricks, then a stack of two 1x6 bricks on the ground in front of it.
+FRONT_STACK = """0 a stack in front of a wall
+1 4 0 -24 40 1 0 0 0 1 0 0 0 1 3009.dat
+1 4 0 -48 40 1 0 0 0 1 0 0 0 1 3009.dat
+0 STEP
+1 2 0 -24 0 1 0 0 0 1 0 0 0 1 3009.dat
+1 2 0 -48 0 1 0 0 0 1 0 0 0 1 3009.dat
+0 STEP
+"""
+
+
+def test_a_stack_is_found_when_its_bottom_is_never_a_first_choice(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+):
+    """The greedy places a brick on the ground first that mimics the stack's top seen from
+    above, then the stack's bottom; the top is not valid until the bottom stands. Solving
+    again with the later decision (the bottom) taken first finds the stack."""
+    import mepnet.stage2.synthesis as synthesis
+
+    m = load_manual(manual_from_ldraw(FRONT_STACK, tmp_path))
+    run = run_manual(m, make_predictor("synthesis"), teacher_forced=True)
+    last = run.main.steps[-1]
+    assert step_matches(run, last) == 2
+    monkeypatch.setattr(synthesis, "LATER_FIRST", False)
+    greedy = run_manual(m, make_predictor("synthesis"), teacher_forced=True)
+    assert step_matches(greedy, greedy.main.steps[-1]) < 2
+
+
 #: A 2x4 brick, then a slope standing on the ground on its own, four studs away.
 APART = """0 a slope standing apart
 1 4 0 -24 0 1 0 0 0 1 0 0 0 1 3001.dat

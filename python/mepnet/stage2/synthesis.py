@@ -235,7 +235,9 @@ def synthesize(
     :data:`WELL_EXPLAINED`), each decision in turn is revisited: the greedy is finished again
     from each of the next :data:`FIRST_CHOICES` - 1 best choices there, and the solution whose
     parts together explain the picture best is kept (a stack of equal parts: the part that
-    best fits the whole stack is not the bottom one).
+    best fits the whole stack is not the bottom one); before that, the step is solved again
+    with each later decision of the greedy taken first (:data:`LATER_FIRST`: a stack's bottom,
+    hidden by its top, is no first choice, and its top is not valid before it).
 
     Parts stand on the ground beside the base shape (on a build's first step: anywhere the
     picture changed); when the solution explains the picture
@@ -286,6 +288,18 @@ def _solve(
     score = _explained(ctx, preds, mask, picture, tone)
     if sum(t.count for t in types) < 2:
         return preds, score
+    # a later decision taken first: a part that shows little until what stands on it is
+    # placed (the bottom brick of a stack, hidden by the top one) is never among the first
+    # choices, and the top one is not valid before it
+    for later in list(taken[1:]) if LATER_FIRST else []:
+        if score >= WELL_EXPLAINED:
+            break
+        alt_preds, alt_taken, alt_options = _greedy(
+            ctx, types, time_limit_s, picture, tone, [later], wide
+        )
+        alt_score = _explained(ctx, alt_preds, mask, picture, tone)
+        if alt_score > score + 1e-6:
+            preds, score, taken, options = alt_preds, alt_score, alt_taken, alt_options
     # each decision in turn: the next best choices there, the rest greedy again
     level = 0
     while score < WELL_EXPLAINED and level < len(taken):
@@ -306,6 +320,9 @@ def _solve(
 #: A multi-instance step whose parts explain the changed pixels at least this well
 #: (:func:`_explained`) is kept as the greedy solved it.
 WELL_EXPLAINED = 0.95
+#: Whether a multi-instance step explained worse is also solved with each later decision of
+#: the greedy taken first (:func:`_solve`).
+LATER_FIRST = True
 #: Choices tried at each decision of a multi-instance step explained worse (the greedy's own
 #: included).
 FIRST_CHOICES = 3
