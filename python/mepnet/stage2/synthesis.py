@@ -284,7 +284,8 @@ def _solve(
     mask = np.zeros((h, w), bool)
     for t in types:
         mask |= t.mask
-    preds, taken, options = _greedy(ctx, types, time_limit_s, picture, tone, [], wide)
+    memo: dict[frozenset[First], tuple[Any, list[tuple[float, First]]]] = {}
+    preds, taken, options = _greedy(ctx, types, time_limit_s, picture, tone, [], wide, memo)
     score = _explained(ctx, preds, mask, picture, tone)
     if sum(t.count for t in types) < 2:
         return preds, score
@@ -295,7 +296,7 @@ def _solve(
         if score >= WELL_EXPLAINED:
             break
         alt_preds, alt_taken, alt_options = _greedy(
-            ctx, types, time_limit_s, picture, tone, [later], wide
+            ctx, types, time_limit_s, picture, tone, [later], wide, memo
         )
         alt_score = _explained(ctx, alt_preds, mask, picture, tone)
         if alt_score > score + 1e-6:
@@ -307,7 +308,7 @@ def _solve(
             if alt == taken[level]:
                 continue
             alt_preds, alt_taken, alt_options = _greedy(
-                ctx, types, time_limit_s, picture, tone, [*taken[:level], alt], wide
+                ctx, types, time_limit_s, picture, tone, [*taken[:level], alt], wide, memo
             )
             alt_score = _explained(ctx, alt_preds, mask, picture, tone)
             if alt_score > score + 1e-6:
@@ -364,11 +365,16 @@ def _greedy(
     tone: np.ndarray,
     prefix: list[First],
     wide: bool = False,
+    memo: dict[frozenset[First], tuple[Any, list[tuple[float, First]]]] | None = None,
 ) -> tuple[list[Prediction], list[First], list[list[First]]]:
     """The greedy of :func:`synthesize`, its first decisions forced to ``prefix``, the ground
     searched wherever the picture changed when ``wide``. Returns the
     predictions, the decision taken at each round and each unforced round's candidates, best
-    first (distinct placements: a symmetric part's equal yaws once)."""
+    first (distinct placements: a symmetric part's equal yaws once).
+
+    ``memo``: a round's ranking by the set of placements made before it, shared by the greedy
+    runs of one solve (what a round sees -- the shape, the pixels left to explain, the
+    instances left -- depends only on that set, not on the order it was placed in)."""
     w, h = ctx.image_size
     asm = ctx.base.copy()
     cam = ctx.camera
@@ -382,12 +388,19 @@ def _greedy(
         best: tuple[float, int, tuple[int, tuple[int, int, int]], dict[str, Any]] | None = None
         ranked_here: list[tuple[float, First]] = []
         forced = len(preds) < len(prefix)
+        key = frozenset(taken)
+        base_depth: np.ndarray | None = None
+        cached = not forced and memo is not None and key in memo
         if forced:
             i, yaw, tr = prefix[len(preds)]
             best = (0.0, i, (yaw, tr), {"forced": True})
+        elif cached:
+            best, ranked_here = memo[key]  # type: ignore[index]
         for i, t in enumerate(types):
+            if forced or cached or not left[i]:
+                continue
             m = t.mask & unexplained
-            if forced or not left[i] or not m.any():
+            if not m.any():
                 continue
             ranked, timed_out = _bg.abys_ranked(
                 asm, cam, w, h, t.component, m, 4 * RANKED, time_limit_s, wide_ground=wide
@@ -398,12 +411,15 @@ def _greedy(
                     distinct.append((yaw, tuple(tr), iou))  # type: ignore[arg-type]
                 if len(distinct) == RANKED:
                     break
+            if base_depth is None:
+                base_depth = _bg.render(asm, cam, w, h, line_px=0.0).depth
             for yaw, tr, iou in distinct:
                 score = iou
-                trial = asm.copy()
-                tid = trial.add(t.component, yaw, tr, colours[i])
-                r = _bg.render(trial, cam, w, h)
-                vis = r.ids == tid
+                # the candidate drawn alone, its visible pixels those in front of the shape
+                alone = _bg.Assembly()
+                alone.add(t.component, yaw, tr, colours[i])
+                r = _bg.render(alone, cam, w, h)
+                vis = (r.ids == 0) & (r.depth < base_depth)
                 if vis.any() and TYPE_WEIGHT and t.belief is not None:
                     score += TYPE_WEIGHT * float(t.belief[vis].mean())
                 if KEYPOINT_WEIGHT and t.heat is not None:
@@ -417,6 +433,8 @@ def _greedy(
                 ranked_here.append((score, (i, yaw, tr)))
                 if best is None or score > best[0]:
                     best = (score, i, (yaw, tr), {"iou": iou, "timed_out": timed_out})
+        if memo is not None and not forced and not cached:
+            memo[key] = (best, ranked_here)
         if best is None:
             for i, t in enumerate(types):
                 ref = ctx.step.components[t.entry].component
