@@ -598,6 +598,8 @@ pub struct MaskTarget {
     pub mask: Vec<bool>,
     /// Number of set pixels in `mask`.
     pub mask_area: u64,
+    /// The mask's pixel box `[x0, y0, x1, y1)` (None when the mask is empty).
+    pub mask_box: Option<[usize; 4]>,
 }
 
 impl MaskTarget {
@@ -612,19 +614,29 @@ impl MaskTarget {
             )));
         }
         let mask_area = mask.iter().filter(|&&m| m).count() as u64;
+        let w = width as usize;
+        let mut mask_box: Option<[usize; 4]> = None;
+        for (i, _) in mask.iter().enumerate().filter(|(_, &m)| m) {
+            let (x, y) = (i % w, i / w);
+            let b = mask_box.get_or_insert([x, y, x + 1, y + 1]);
+            *b = [b[0].min(x), b[1].min(y), b[2].max(x + 1), b[3].max(y + 1)];
+        }
         Ok(MaskTarget {
             width,
             height,
             base_depth,
             mask,
             mask_area,
+            mask_box,
         })
     }
 }
 
 /// IoU between the visible silhouette of meshes placed at poses (in front of the target's base
 /// depth) and the target mask; also returns the visible pixel count. Only the candidate's
-/// screen bounding box is rasterized, so scoring thousands of candidates is cheap.
+/// screen bounding box is rasterized, so scoring thousands of candidates is cheap; a candidate
+/// whose box misses the mask's box is not rasterized at all (IoU 0; its visible pixel count is
+/// then reported as 0).
 pub fn silhouette_iou(
     meshes: &[(&Mesh, Pose)],
     camera: &Camera,
@@ -674,6 +686,11 @@ pub fn silhouette_iou(
     if bw == 0 || bh == 0 {
         let iou = if target.mask_area == 0 { 1.0 } else { 0.0 };
         return Ok((iou, 0));
+    }
+    if let Some([mx0, my0, mx1, my1]) = target.mask_box {
+        if x1 <= mx0 || mx1 <= x0 || y1 <= my0 || my1 <= y0 {
+            return Ok((0.0, 0)); // no pixel in common: nothing to intersect
+        }
     }
     let mut depth = vec![f32::INFINITY; bw * bh];
     for t in &tris {
@@ -772,6 +789,37 @@ mod tests {
             assert_eq!(r.visible_samples[0], got as u64);
             assert_eq!(r.total_samples[0], got as u64);
         }
+    }
+
+    #[test]
+    fn silhouette_iou_skips_only_candidates_that_miss_the_mask() {
+        let mesh = cuboid([-40.0, 0.0, -20.0], [40.0, 24.0, 20.0]);
+        let cam = Camera::new(30.0, 225.0, 0.0, 0.01, [0.0, 0.0]).unwrap();
+        let (w, h) = (128u32, 128u32);
+        let r = render(
+            &[RenderItem::new(&mesh, [9, 9, 9])],
+            &cam,
+            &RenderOptions::new(w, h),
+        )
+        .unwrap();
+        let drawn: Vec<bool> = r.ids.iter().map(|&i| i == 0).collect();
+        let empty = vec![f32::INFINITY; (w * h) as usize];
+        let at = |x: i32| Pose::new(0, [x, 0, 0]); // half-studs
+        let target = MaskTarget::new(w, h, empty.clone(), drawn.clone()).unwrap();
+        // the box where the mask was drawn: IoU about 1
+        let (iou, visible) = silhouette_iou(&[(&mesh, at(0))], &cam, &target).unwrap();
+        assert!(iou > 0.95 && visible > 0, "{iou}");
+        // half a box off: the same IoU whether or not the mask's box is known
+        let mut unboxed = target.clone();
+        unboxed.mask_box = None;
+        let half = [(&mesh, at(4))];
+        let a = silhouette_iou(&half, &cam, &target).unwrap();
+        let b = silhouette_iou(&half, &cam, &unboxed).unwrap();
+        assert!(a.0 > 0.1 && a.0 < 0.9 && a == b, "{a:?} {b:?}");
+        // far from the mask: IoU 0 either way
+        let far = [(&mesh, at(200))];
+        assert_eq!(silhouette_iou(&far, &cam, &target).unwrap().0, 0.0);
+        assert_eq!(silhouette_iou(&far, &cam, &unboxed).unwrap().0, 0.0);
     }
 
     #[test]
