@@ -19,7 +19,7 @@ from mepnet import _brickgeom as _bg
 from mepnet.errors import MepnetError
 from mepnet.geom import BrickGeomError
 from mepnet.stage2.base import Prediction, StepContext
-from mepnet.stage2.synthesis import _max_filter, step_change, step_picture
+from mepnet.stage2.synthesis import PAGE_LIKE, _max_filter, silhouette, step_change, step_picture
 from mepnet.state import CHANGE_THRESHOLD
 
 #: A step whose confidence is below this is flagged: its picture is not explained.
@@ -123,18 +123,6 @@ class View:
         r = _bg.render(shape, self.camera, w, h, line_px=0.0)
         unlike = np.abs(r.rgb.astype(np.float32) - self.page).max(axis=2) > PAGE_LIKE
         return r.ids, (r.ids >= 0) & unlike
-
-
-#: A drawn colour this close (0-255, any channel) to the page's is no evidence of the model.
-PAGE_LIKE = 30.0
-
-
-def silhouette(rgb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(H, W) bool: the model in a step picture ((H, W, 3) uint8), with the page-coloured
-    regions the page around it does not reach (:func:`mepnet._brickgeom.foreground_mask`); and
-    the page's colour (RGB)."""
-    fg, colour = _bg.foreground_mask(np.ascontiguousarray(rgb), PAGE_LIKE)
-    return fg, np.asarray(colour, np.float32)
 
 
 @dataclass(frozen=True)

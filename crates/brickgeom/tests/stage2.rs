@@ -5,7 +5,7 @@ use std::sync::Arc;
 
 use brickgeom::camera::Camera;
 use brickgeom::colours::ColourTable;
-use brickgeom::raster::RenderOptions;
+use brickgeom::raster::{RenderOptions, Rendered};
 use brickgeom::scene::{render_assembly, MeshSource};
 use brickgeom::stage2::{
     abys_ranked, abys_step, infer_step, rotation_class, Detection, InferOptions, TypeDetections,
@@ -35,29 +35,30 @@ fn camera_for(asm: &Assembly) -> Camera {
         .unwrap()
 }
 
-/// The pixels where instance `id` of `after` is visible, rendered with the built-in meshes.
-fn mask_of(after: &Assembly, cam: &Camera, id: u32) -> Vec<bool> {
-    let r = render_assembly(
+/// `after` rendered with the built-in meshes and colours.
+fn rendered(after: &Assembly, cam: &Camera) -> Rendered {
+    render_assembly(
         after,
         cam,
         &RenderOptions::new(W, W),
         &ColourTable::builtin(),
         &MeshSource::builtin(),
     )
-    .unwrap();
-    r.ids.iter().map(|&i| i == id as i32).collect()
+    .unwrap()
+}
+
+/// The pixels where instance `id` of `after` is visible.
+fn mask_of(after: &Assembly, cam: &Camera, id: u32) -> Vec<bool> {
+    rendered(after, cam)
+        .ids
+        .iter()
+        .map(|&i| i == id as i32)
+        .collect()
 }
 
 /// Oracle detections for the instances `new` (ids in `after`) of a step, grouped by component.
 fn oracle(after: &Assembly, new: &[u32], cam: &Camera, jitter: f64) -> Vec<TypeDetections> {
-    let r = render_assembly(
-        after,
-        cam,
-        &RenderOptions::new(W, W),
-        &ColourTable::builtin(),
-        &MeshSource::builtin(),
-    )
-    .unwrap();
+    let r = rendered(after, cam);
     let mut types: Vec<TypeDetections> = Vec::new();
     for (k, &id) in new.iter().enumerate() {
         let inst = after.instance(id).unwrap();

@@ -141,22 +141,21 @@ class HalfOraclePredictor(AnswerReader):
         from mepnet.stage2.detector import share_out
 
         types, _, _ = self.detector.detections(ctx)
+        true = truth_detections(ctx, truth, 0.0, None)
         swapped = []
         for entries, t in types:
             det = t.detections
-            iids = [i for e in entries for i in truth.instances_of[e]]
-            true_kp = np.array([truth.keypoint(i) for i in iids], np.float64).reshape(-1, 2)
-            true_rot = np.zeros((len(iids), 7), np.float32)
-            for j, i in enumerate(iids):
-                true_rot[j, _bg.rotation_class(t.component.symmetry, truth.instances[i].yaw)] = 1
+            true_kp = np.concatenate([true[e].detections.keypoints for e in entries])
+            true_rot = np.concatenate([true[e].detections.rotations for e in entries])
+            n = len(true_kp)
             pairs = _match(det.keypoints, true_kp)
             if self.swap == "translation":
-                rot = np.full((len(iids), 7), 1.0 / 7.0, np.float32)
-                masks = np.zeros((len(iids), *det.masks.shape[1:]), bool)
+                rot = np.full((n, 7), 1.0 / 7.0, np.float32)
+                masks = np.zeros((n, *det.masks.shape[1:]), bool)
                 for d, j in pairs:
                     rot[j] = det.rotations[d]
                     masks[j] = det.masks[d]
-                new = TypeDetections(true_kp, np.ones(len(iids), np.float32), rot, masks)
+                new = TypeDetections(true_kp, np.ones(n, np.float32), rot, masks)
             else:
                 rot = det.rotations.copy()
                 for d, j in pairs:

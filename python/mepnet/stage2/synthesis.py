@@ -139,8 +139,24 @@ def step_change(ctx: StepContext, picture: np.ndarray) -> tuple[np.ndarray, np.n
     return change, tone
 
 
-#: A picture's colour this close to the page's (0-255, any channel) reads as page.
+#: A drawn colour this close (0-255, any channel) to the page's is no evidence of the model.
 PAGE_LIKE = 30.0
+
+
+def silhouette(rgb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(H, W) bool: the model in a step picture ((H, W, 3) uint8), with the page-coloured
+    regions the page around it does not reach (:func:`mepnet._brickgeom.foreground_mask`); and
+    the page's colour (RGB)."""
+    fg, colour = _bg.foreground_mask(np.ascontiguousarray(rgb), PAGE_LIKE)
+    return fg, np.asarray(colour, np.float32)
+
+
+def _enclosed_page(picture: np.ndarray) -> np.ndarray:
+    """(H, W) bool: the page-coloured pixels of ``picture`` ((H, W, 3) floats in [0, 1]) that
+    the page around the drawing does not reach (:func:`silhouette`)."""
+    rgb = np.clip(picture * 255.0 + 0.5, 0, 255).astype(np.uint8)
+    fg, page = silhouette(rgb)
+    return fg & (np.abs(rgb.astype(np.float32) - page).max(axis=2) <= PAGE_LIKE)
 
 
 def fill_enclosed(
@@ -150,30 +166,21 @@ def fill_enclosed(
     picture_before: np.ndarray | None,
 ) -> None:
     """Mark as changed (in place) the page-coloured regions of the picture that the page around
-    the drawing does not reach (:func:`mepnet._brickgeom.foreground_mask`), where the base shape
-    leaves the page bare and a change borders them: the faces of a white part on white paper,
-    told from the page only by their outlines and shading, which another renderer may draw
-    lighter than ours (then only the outlines read as changed). A region already enclosed in
-    the previous picture (``picture_before``, (3, H, W) seen with this step's camera: a gap
-    under an arch) is left alone."""
+    the drawing does not reach (:func:`_enclosed_page`), where the base shape leaves the page
+    bare and a change borders them: the faces of a white part on white paper, told from the
+    page only by their outlines and shading, which another renderer may draw lighter than ours
+    (then only the outlines read as changed). A region already enclosed in the previous picture
+    (``picture_before``, (3, H, W) seen with this step's camera: a gap under an arch) is left
+    alone."""
     w, h = ctx.image_size
-    rgb = np.ascontiguousarray(np.clip(picture * 255.0 + 0.5, 0, 255).astype(np.uint8))
-    fg, page = _bg.foreground_mask(rgb, PAGE_LIKE)
-    page_like = np.abs(rgb.astype(np.float32) - np.asarray(page, np.float32)).max(axis=2)
-    hole = fg & (page_like <= PAGE_LIKE)
+    hole = _enclosed_page(picture)
     if not hole.any():
         return
     if len(ctx.base):
         hole &= _bg.render(ctx.base, ctx.camera, w, h, line_px=0.0).ids < 0
     if picture_before is not None:
-        prev = np.ascontiguousarray(
-            np.clip(picture_before.transpose(1, 2, 0) * 255.0 + 0.5, 0, 255).astype(np.uint8)
-        )
-        fg_prev, page_prev = _bg.foreground_mask(prev, PAGE_LIKE)
-        like_prev = np.abs(prev.astype(np.float32) - np.asarray(page_prev, np.float32)).max(2)
-        hole &= ~(fg_prev & (like_prev <= PAGE_LIKE))
-    seed = change > CHANGE_THRESHOLD
-    grown = _reconstruct(seed, hole)
+        hole &= ~_enclosed_page(picture_before.transpose(1, 2, 0))
+    grown = _reconstruct(change > CHANGE_THRESHOLD, hole)
     change[grown] = np.maximum(change[grown], 1.0)
 
 
@@ -384,12 +391,12 @@ def _greedy(
     preds: list[Prediction] = []
     taken: list[First] = []
     options: list[list[First]] = []
+    shape_depth: np.ndarray | None = None  # of asm, rendered when first needed
     while any(left):
         best: tuple[float, int, tuple[int, tuple[int, int, int]], dict[str, Any]] | None = None
         ranked_here: list[tuple[float, First]] = []
         forced = len(preds) < len(prefix)
         key = frozenset(taken)
-        base_depth: np.ndarray | None = None
         cached = not forced and memo is not None and key in memo
         if forced:
             i, yaw, tr = prefix[len(preds)]
@@ -411,15 +418,15 @@ def _greedy(
                     distinct.append((yaw, tuple(tr), iou))  # type: ignore[arg-type]
                 if len(distinct) == RANKED:
                     break
-            if base_depth is None:
-                base_depth = _bg.render(asm, cam, w, h, line_px=0.0).depth
+            if shape_depth is None:
+                shape_depth = _bg.render(asm, cam, w, h, line_px=0.0).depth
             for yaw, tr, iou in distinct:
                 score = iou
                 # the candidate drawn alone, its visible pixels those in front of the shape
                 alone = _bg.Assembly()
                 alone.add(t.component, yaw, tr, colours[i])
                 r = _bg.render(alone, cam, w, h)
-                vis = (r.ids == 0) & (r.depth < base_depth)
+                vis = (r.ids == 0) & (r.depth < shape_depth)
                 if vis.any() and TYPE_WEIGHT and t.belief is not None:
                     score += TYPE_WEIGHT * float(t.belief[vis].mean())
                 if KEYPOINT_WEIGHT and t.heat is not None:
@@ -451,7 +458,9 @@ def _greedy(
             return preds, taken, options
         taken.append((i, yaw, tr))
         options.append([f for _, f in sorted(ranked_here, key=lambda x: -x[0])])
-        unexplained &= _bg.render(asm, cam, w, h, line_px=0.0).ids != new_id
+        shape = _bg.render(asm, cam, w, h, line_px=0.0)
+        unexplained &= shape.ids != new_id
+        shape_depth = shape.depth  # the next round's candidates are drawn against it
         left[i] -= 1
         entry = types[i].entry
         ref = ctx.step.components[entry].component
