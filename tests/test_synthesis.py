@@ -134,8 +134,9 @@ def test_a_first_step_finds_its_parts_wherever_they_stand(tmp_path: Path):
 
 def test_a_white_part_on_white_paper_reads_as_changed_inside_its_outline():
     """Another renderer may draw a white part almost as white as the page: only its outline
-    differs. The page-coloured region the outline encloses is changed too; a gap that the
-    previous picture already enclosed (under an arch) is not; nor is the open page."""
+    differs. The page-coloured region the outline encloses is changed too; a light region that
+    the previous picture already enclosed is not; nor is the page itself, seen through a gap a
+    new part closes, nor the open page."""
     from types import SimpleNamespace
 
     import numpy as np
@@ -145,25 +146,31 @@ def test_a_white_part_on_white_paper_reads_as_changed_inside_its_outline():
     size = 64
     pic = np.ones((size, size, 3), np.float32)
     pic[10:30, 10:30] = 0.2  # the outline of a white part...
-    pic[12:28, 12:28] = 0.97  # ...whose faces are drawn as light as the page
-    pic[40:60, 40:60] = 0.2  # an old frame round a gap
-    pic[42:58, 42:58] = 1.0
+    pic[12:28, 12:28] = 0.97  # ...whose faces are drawn almost as light as the page
+    pic[40:60, 40:60] = 0.2  # an old frame round a light region
+    pic[42:58, 42:58] = 0.97
+    pic[40:60, 4:24] = 0.2  # a new frame round a gap: the page shows through
+    pic[42:58, 6:22] = 1.0
     change = np.zeros((size, size), np.float32)
     change[10:30, 10:30] = 1.0
     change[12:28, 12:28] = 0.0  # the change map saw only the outline
     change[40:60, 40:60] = 1.0
     change[42:58, 42:58] = 0.0
+    change[40:60, 4:24] = 1.0
+    change[42:58, 6:22] = 0.0
     before = np.ones((3, size, size), np.float32)
     before[:, 40:60, 40:60] = 0.2
-    before[:, 42:58, 42:58] = 1.0  # the gap was there before this step
+    before[:, 42:58, 42:58] = 0.97  # the light region was there before this step
     ctx = SimpleNamespace(image_size=(size, size), base=_bg.Assembly())
     got = change.copy()
     fill_enclosed(got, pic, ctx, before)  # type: ignore[arg-type]
     changed = got > CHANGE_THRESHOLD
     assert changed[12:28, 12:28].all()
     assert not changed[42:58, 42:58].any()
+    assert not changed[42:58, 6:22].any()
     assert not changed[:8].any() and not changed[:, 32:38].any()
-    # without the previous picture the gap is filled as well: it borders a change
+    # without the previous picture the light region is filled as well: it borders a change
     got = change.copy()
     fill_enclosed(got, pic, ctx, None)  # type: ignore[arg-type]
     assert (got[42:58, 42:58] > CHANGE_THRESHOLD).all()
+    assert not (got[42:58, 6:22] > CHANGE_THRESHOLD).any()

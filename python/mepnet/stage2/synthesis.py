@@ -151,12 +151,19 @@ def silhouette(rgb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return fg, np.asarray(colour, np.float32)
 
 
+#: ... and one this close (0-255, every channel) is the page itself, seen through a gap in the
+#: model, not a face drawn almost as light as the page (LeoCAD's white faces: 11 off white).
+PAGE_EXACT = 3.0
+
+
 def _enclosed_page(picture: np.ndarray) -> np.ndarray:
     """(H, W) bool: the page-coloured pixels of ``picture`` ((H, W, 3) floats in [0, 1]) that
-    the page around the drawing does not reach (:func:`silhouette`)."""
+    the page around the drawing does not reach (:func:`silhouette`), except those of exactly
+    the page's colour (a gap between parts)."""
     rgb = np.clip(picture * 255.0 + 0.5, 0, 255).astype(np.uint8)
     fg, page = silhouette(rgb)
-    return fg & (np.abs(rgb.astype(np.float32) - page).max(axis=2) <= PAGE_LIKE)
+    off = np.abs(rgb.astype(np.float32) - page).max(axis=2)
+    return fg & (off <= PAGE_LIKE) & (off > PAGE_EXACT)
 
 
 def fill_enclosed(

@@ -181,13 +181,15 @@ def _main(args: argparse.Namespace) -> int:
     out = Path(cfg.out)
     if out.exists() and not out.is_dir():
         raise ConfigError(f"{out}: exists and is not a folder (--out)")
-    # a run writes only into a folder of its own: new, empty, or an earlier run's
-    if out.is_dir() and any(out.iterdir()) and not (out / MANIFEST).is_file():
+    main_rank = os.environ.get("RANK", "0") == "0"
+    # a run writes only into a folder of its own: new, empty, or an earlier run's (checked by
+    # the main process alone: the others would race with its lock file and manifest)
+    if main_rank and out.is_dir() and any(out.iterdir()) and not (out / MANIFEST).is_file():
         raise OutputError(
             f"{out}: holds files mepnet.train did not write (choose a new --out; nothing was changed)"
         )
     out.mkdir(parents=True, exist_ok=True)
-    lock = _lock(out) if os.environ.get("RANK", "0") == "0" else None
+    lock = _lock(out) if main_rank else None
     try:
         if lock is not None and not (out / MANIFEST).is_file():
             atomic_write_json(out / MANIFEST, {"writer": "mepnet.train", "files": list(RUN_FILES)})

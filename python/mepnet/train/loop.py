@@ -69,6 +69,10 @@ def _new_window() -> dict[str, float]:
     return {"n": 0.0, "loss": 0.0, "grad_norm": 0.0}
 
 
+#: ``-W`` option for the resource tracker: its UserWarnings are about an interrupted run's queues.
+TRACKER_QUIET = "ignore::UserWarning:multiprocessing.resource_tracker"
+
+
 @dataclass
 class Data:
     """The batch stream: ``batches(start)`` yields from step ``start`` on; ``steps_per_epoch``
@@ -95,6 +99,15 @@ class Data:
             yield from batches
             epoch, position = epoch + 1, 0
 
+    def close(self) -> None:
+        """Stop the worker processes now (persistent workers otherwise live until the loader is
+        collected at exit, where an interrupted run's queues can be torn down out of order and
+        multiprocessing's resource tracker warns about them after the one-line message)."""
+        iterator = getattr(self.loader, "_iterator", None)
+        if iterator is not None and hasattr(iterator, "_shutdown_workers"):
+            iterator._shutdown_workers()
+        self.loader._iterator = None  # type: ignore[attr-defined]
+
 
 def make_data(
     cfg: TrainConfig,
@@ -114,6 +127,11 @@ def make_data(
         )
     loader_kw: dict[str, Any] = {"num_workers": workers, "pin_memory": cuda}
     if workers > 0:
+        # multiprocessing's resource tracker starts with the loader's queues and takes its
+        # warning options from these: after Ctrl-C its notes on the queues an interrupted run
+        # left would follow the one-line message
+        if TRACKER_QUIET not in sys.warnoptions:
+            sys.warnoptions.append(TRACKER_QUIET)
         # spawn, not fork: validation runs the extension's thread pool in this process, and a
         # pool started before a fork is unusable in the child; workers persist across epochs
         loader_kw.update(
@@ -452,6 +470,8 @@ def train(
             paused += time.perf_counter() - t_pause
     finally:
         bar.close()  # also on Ctrl-C, before the one-line message
+        batches.close()  # the generator drops its loader iterator (non-persistent workers stop)
+        data.close()
 
     if log is not None:
         log.plot()
