@@ -372,6 +372,7 @@ def evaluate(
             seen = (scorer.components, scorer.correct, scorer.supported, scorer.supported_correct)
             kinds = dict.fromkeys(ERROR_KINDS, 0)
             first_wrong = 0
+            wrong_where: list[str] = []
             for b in run.builds:
                 truth = answers.build(b.key)
                 scale = _diag([(comps[i.component], i.yaw, i.t) for i in truth.instances])
@@ -385,6 +386,7 @@ def evaluate(
                     wrong += int(not ok)
                     if not ok:
                         first_wrong += int(s.index == 1)
+                        wrong_where.append(f"{b.name} step {s.index}")
                         for k, v in error_kinds(preds, gt, comps, supported).items():
                             kinds[k] += v
                     if s.camera is not None and s.camera.source == "estimated":
@@ -415,6 +417,7 @@ def evaluate(
                     "supported": sup,
                     "supported_correct": sup_right,
                     "errors": kinds,
+                    "wrong": wrong_where,
                 }
             )
             if autoregressive:
