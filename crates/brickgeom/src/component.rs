@@ -3,7 +3,7 @@
 use std::collections::BTreeSet;
 
 use crate::error::{BrickGeomError, Result};
-use crate::lattice::{rotate_cell, rotate_point, Lattice, Pose};
+use crate::lattice::{rotate_cell, rotate_point, Lattice, Pose, LDU_PER_UNIT};
 use crate::library::part;
 use crate::mesh::Mesh;
 
@@ -56,6 +56,9 @@ pub struct Component {
     /// Indices into `bricks` of the topmost bricks (highest top face); their keypoints are the
     /// component's keypoint candidates.
     pub topmost: Vec<usize>,
+    /// Centres of the bricks' side studs (LDU, rounded, component frame), sorted: no lattice
+    /// connections, but they tell apart poses with the same voxels and connection points.
+    pub side_studs: Vec<[i32; 3]>,
 }
 
 /// The four cells around a connection point, on the layer `y` (the layer above a stud is the
@@ -149,6 +152,16 @@ impl Component {
         let top = tops.iter().cloned().fold(f32::MIN, f32::max);
         let topmost = (0..bricks.len()).filter(|&i| tops[i] == top).collect();
         let voxels: Vec<Lattice> = voxels.into_iter().collect();
+        let mut side_studs: Vec<[i32; 3]> = bricks
+            .iter()
+            .flat_map(|b| {
+                let def = part(b.part).expect("checked above");
+                def.side_stud_points
+                    .iter()
+                    .map(move |&p| round_ldu(b.pose.apply_ldu(p)))
+            })
+            .collect();
+        side_studs.sort_unstable();
         let mut c = Component {
             name,
             is_submodule: true,
@@ -158,6 +171,7 @@ impl Component {
             anti_studs,
             symmetry: 1,
             topmost,
+            side_studs,
         };
         c.symmetry = c.detect_symmetry();
         Ok(c)
@@ -178,32 +192,54 @@ impl Component {
         (v, s, a)
     }
 
-    /// Number of quarter turns (out of 4) under which the geometry equals itself up to a
-    /// translation.
+    /// Side-stud centres (LDU, rounded) after a pose, sorted.
+    fn placed_side_studs(&self, pose: &Pose) -> Vec<[i32; 3]> {
+        let mut s: Vec<[i32; 3]> = self
+            .side_studs
+            .iter()
+            .map(|&[x, y, z]| round_ldu(pose.apply_ldu([x as f32, y as f32, z as f32])))
+            .collect();
+        s.sort_unstable();
+        s
+    }
+
+    /// Number of quarter turns (out of 4) under which the geometry (voxels, connection points
+    /// and side studs) equals itself up to a translation.
     fn detect_symmetry(&self) -> u8 {
-        let base = self.placed(&Pose::identity());
-        let norm = |(v, s, a): (Vec<Lattice>, Vec<Lattice>, Vec<Lattice>)| {
+        let at = |yaw: u8| {
+            let pose = Pose::new(yaw, [0, 0, 0]);
+            let (v, s, a) = self.placed(&pose);
             let m = v.iter().fold([i32::MAX; 3], |m, c| {
                 [m[0].min(c[0]), m[1].min(c[1]), m[2].min(c[2])]
             });
             let sh = |p: &Lattice| [p[0] - m[0], p[1] - m[1], p[2] - m[2]];
+            let ldu = |p: &[i32; 3]| {
+                [
+                    p[0] - m[0] * LDU_PER_UNIT[0] as i32,
+                    p[1] - m[1] * LDU_PER_UNIT[1] as i32,
+                    p[2] - m[2] * LDU_PER_UNIT[2] as i32,
+                ]
+            };
             (
                 v.iter().map(sh).collect::<Vec<_>>(),
                 s.iter().map(sh).collect::<Vec<_>>(),
                 a.iter().map(sh).collect::<Vec<_>>(),
+                self.placed_side_studs(&pose)
+                    .iter()
+                    .map(ldu)
+                    .collect::<Vec<_>>(),
             )
         };
-        let base = norm(base);
-        let n = (0..4u8)
-            .filter(|&yaw| norm(self.placed(&Pose::new(yaw, [0, 0, 0]))) == base)
-            .count();
-        n as u8
+        let base = at(0);
+        (0..4u8).filter(|&yaw| at(yaw) == base).count() as u8
     }
 
-    /// Two poses are the same placement when they produce identical geometry (this is pose
-    /// equality modulo the component's symmetry).
+    /// Two poses are the same placement when they produce identical geometry: voxels,
+    /// connection points and side studs (pose equality modulo the component's symmetry).
     pub fn same_placement(&self, a: &Pose, b: &Pose) -> bool {
-        a == b || self.placed(a) == self.placed(b)
+        a == b
+            || (self.placed(a) == self.placed(b)
+                && self.placed_side_studs(a) == self.placed_side_studs(b))
     }
 
     /// The keypoints (LDU, y up, component frame) of the topmost bricks.
@@ -242,4 +278,13 @@ pub fn rotate_cells(cells: &[Lattice], yaw: u8) -> Vec<Lattice> {
 /// Rotate a whole list of points.
 pub fn rotate_points(points: &[Lattice], yaw: u8) -> Vec<Lattice> {
     points.iter().map(|&p| rotate_point(p, yaw)).collect()
+}
+
+/// A point in LDU rounded to whole LDU (side-stud centres lie on whole LDU).
+fn round_ldu(p: [f32; 3]) -> [i32; 3] {
+    [
+        p[0].round() as i32,
+        p[1].round() as i32,
+        p[2].round() as i32,
+    ]
 }

@@ -82,6 +82,9 @@ pub struct PartDef {
     /// part of `mesh` but not of `studs`, and take no part in lattice connections. 0 for most
     /// parts.
     pub side_studs: u8,
+    /// Centres (LDU, y up, part-local) of the side studs: where they point tells yaws apart
+    /// that the lattice geometry alone does not (87087 turned a quarter about its centre).
+    pub side_stud_points: Vec<[f32; 3]>,
 }
 
 /// Part references used in real LDraw files that mean a library part: LDraw "~Moved to"
@@ -266,6 +269,11 @@ fn finish(id: &'static str, name: &'static str, category: Category, s: Shape) ->
         keypoint: [kx, ky, -kz + 0.0],
         mesh,
         side_studs: s.side_studs.len() as u8,
+        side_stud_points: s
+            .side_studs
+            .iter()
+            .map(|&[x, y, z]| [x, y, -z + 0.0])
+            .collect(),
     }
 }
 

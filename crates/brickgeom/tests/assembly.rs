@@ -247,6 +247,29 @@ fn submodule_union_symmetry_and_topmost() {
 }
 
 #[test]
+fn a_side_stud_tells_apart_turns_the_lattice_geometry_does_not() {
+    // 87087 turned a quarter about its centre: the same voxels and vertical studs, but the side
+    // stud points elsewhere (a different picture), so it is not the same placement
+    let c = component("87087");
+    assert_eq!(c.symmetry, 1);
+    let a = Pose::new(0, [0, 5, -1]);
+    for yaw in 1..4 {
+        let b = Pose::new(yaw, [0, 5, -1]);
+        assert_eq!(c.placed(&a), c.placed(&b), "a 1x1 brick's lattice geometry");
+        assert!(!c.same_placement(&a, &b), "yaw {yaw}");
+    }
+    assert!(c.same_placement(&a, &a));
+    // the same in a submodule: a 2x2 brick with an 87087 on it has no symmetry, while a 2x2
+    // brick with a 1x1 brick on its centre has four quarter turns
+    for (top, symmetry) in [("87087", 1), ("3005", 4)] {
+        let mut asm = Assembly::new();
+        asm.add(component("3003"), Pose::new(0, [0, 3, 0])).unwrap();
+        asm.add(component(top), Pose::new(0, [0, 6, 0])).unwrap();
+        assert_eq!(asm.to_component("s").unwrap().symmetry, symmetry, "{top}");
+    }
+}
+
+#[test]
 fn remove_unknown_instance_is_an_error() {
     let mut asm = Assembly::new();
     assert_eq!(
