@@ -423,3 +423,18 @@ def test_half_oracles_swap_in_one_half_of_the_answer(manuals: Path, monkeypatch)
         assert list(t2.detections.rotations.argmax(1)) == classes
     with pytest.raises(ConfigError):
         bl.HalfOraclePredictor(Fake(), "colour")
+
+
+def test_same_shape_tells_turned_slopes_and_side_studs_apart():
+    """A final model is exact only brick for brick at the same placement: a symmetric brick
+    either way round is, a slope or a side stud turned on the same voxels is not."""
+    from mepnet.plan import same_shape
+
+    def one(part: str, yaw: int) -> list:
+        return [(_bg.Component.primitive(part), yaw, (0, 3, 0), 4)]
+
+    assert same_shape(one("3003", 0), one("3003", 1))
+    assert not same_shape(one("87087", 0), one("87087", 1))
+    assert not same_shape(one("3039", 0), one("3039", 2))
+    assert not same_shape(one("3003", 0), [*one("3003", 0), *one("3005", 0)])
+    assert not same_shape([(_bg.Component.primitive("3003"), 0, (0, 3, 0), 1)], one("3003", 0))

@@ -59,7 +59,7 @@ from mepnet.plan import (
     built_exactly,
     predicted_placements,
     run_manual,
-    shape_key,
+    same_shape,
     step_motion,
 )
 from mepnet.stage2 import LIFTS, PREDICTORS, Prediction, Predictor, make_predictor
@@ -239,7 +239,7 @@ def _same_shape(a: _bg.Component, b: _bg.Component) -> bool:
         return False
     if not a.is_submodule or a is b or a.bricks == b.bricks:
         return True
-    return shape_key([(a, 0, (0, 0, 0), 16)]) == shape_key([(b, 0, (0, 0, 0), 16)])
+    return same_shape([(a, 0, (0, 0, 0), 16)], [(b, 0, (0, 0, 0), 16)])
 
 
 def _canonical(

@@ -518,28 +518,37 @@ def accuracy(run: ManualRun) -> tuple[int, int]:
     return right, total
 
 
-def shape_key(placed: list[tuple[_bg.Component, int, tuple[int, int, int], int]]) -> list[Any]:
-    """A final shape as comparable data: per brick (submodules expanded) its part, colour and
-    occupied voxels, sorted, so that symmetric parts placed either way compare equal."""
-    if not placed:
-        return []
-    bricks = submodule_from_placed("shape", placed).bricks
-    key = []
-    for part, yaw, t, colour in bricks:
-        cells = part_cells(part, yaw, t)
-        key.append((part, colour, cells))
-    return sorted(key)
-
-
-def part_cells(part: str, yaw: int, t: tuple[int, int, int]) -> tuple[tuple[int, ...], ...]:
-    """The voxels a part occupies at a pose, sorted (placed by the core)."""
-    placed = _bg.Component.from_placed("brick", [(_bg.Component.primitive(part), yaw, t, 16)])
-    return tuple(sorted(tuple(v) for v in placed.voxels.tolist()))
+def same_shape(
+    a: list[tuple[_bg.Component, int, tuple[int, int, int], int]],
+    b: list[tuple[_bg.Component, int, tuple[int, int, int], int]],
+) -> bool:
+    """Whether two sets of placed components are the same shape: brick for brick (submodules
+    expanded) the same part and colour at the same placement (``same_placement``: voxels,
+    connection points and side studs, so a symmetric part placed either way is the same and a
+    slope or a side stud turned is not)."""
+    if not a or not b:
+        return not a and not b
+    bricks_a = submodule_from_placed("shape", a).bricks
+    bricks_b = submodule_from_placed("shape", b).bricks
+    if len(bricks_a) != len(bricks_b):
+        return False
+    left: dict[tuple[str, int], list[tuple[int, tuple[int, int, int]]]] = {}
+    for part, yaw, t, colour in bricks_b:
+        left.setdefault((part, colour), []).append((yaw, tuple(t)))  # type: ignore[arg-type]
+    prims: dict[str, _bg.Component] = {}
+    for part, yaw, t, colour in bricks_a:
+        prim = prims.setdefault(part, _bg.Component.primitive(part))
+        cands = left.get((part, colour), [])
+        j = next((j for j, (y, u) in enumerate(cands) if prim.same_placement(yaw, t, y, u)), None)
+        if j is None:
+            return False
+        cands.pop(j)
+    return True
 
 
 def built_exactly(run: ManualRun) -> bool | None:
-    """Whether the final model the run built is the true one (parts, colours and voxels, every
-    submodule expanded); None without answers."""
+    """Whether the final model the run built is the true one (:func:`same_shape`: parts,
+    colours and placements, every submodule expanded); None without answers."""
     answers = run.manual.answers
     if answers is None:
         return None
@@ -549,7 +558,7 @@ def built_exactly(run: ManualRun) -> bool | None:
     if frame_free(run.main) and run.main.steps:
         motion = step_motion(run, run.main, run.main.steps[0])
         built = [moved(x, motion) for x in built]
-    return shape_key(built) == shape_key(truth)
+    return same_shape(built, truth)
 
 
 def plan_json(run: ManualRun) -> dict[str, Any]:
