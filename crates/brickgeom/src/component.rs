@@ -3,7 +3,7 @@
 use std::collections::BTreeSet;
 
 use crate::error::{BrickGeomError, Result};
-use crate::lattice::{rotate_cell, rotate_point, Lattice, Pose, LDU_PER_UNIT};
+use crate::lattice::{rotate_cell, rotate_point, Lattice, Pose};
 use crate::library::part;
 use crate::mesh::Mesh;
 
@@ -206,29 +206,14 @@ impl Component {
     /// Number of quarter turns (out of 4) under which the geometry (voxels, connection points
     /// and side studs) equals itself up to a translation.
     fn detect_symmetry(&self) -> u8 {
+        // each quarter turn moved so that its lowest voxel corner is the origin
         let at = |yaw: u8| {
-            let pose = Pose::new(yaw, [0, 0, 0]);
-            let (v, s, a) = self.placed(&pose);
+            let (v, _, _) = self.placed(&Pose::new(yaw, [0, 0, 0]));
             let m = v.iter().fold([i32::MAX; 3], |m, c| {
                 [m[0].min(c[0]), m[1].min(c[1]), m[2].min(c[2])]
             });
-            let sh = |p: &Lattice| [p[0] - m[0], p[1] - m[1], p[2] - m[2]];
-            let ldu = |p: &[i32; 3]| {
-                [
-                    p[0] - m[0] * LDU_PER_UNIT[0] as i32,
-                    p[1] - m[1] * LDU_PER_UNIT[1] as i32,
-                    p[2] - m[2] * LDU_PER_UNIT[2] as i32,
-                ]
-            };
-            (
-                v.iter().map(sh).collect::<Vec<_>>(),
-                s.iter().map(sh).collect::<Vec<_>>(),
-                a.iter().map(sh).collect::<Vec<_>>(),
-                self.placed_side_studs(&pose)
-                    .iter()
-                    .map(ldu)
-                    .collect::<Vec<_>>(),
-            )
+            let pose = Pose::new(yaw, [-m[0], -m[1], -m[2]]);
+            (self.placed(&pose), self.placed_side_studs(&pose))
         };
         let base = at(0);
         (0..4u8).filter(|&yaw| at(yaw) == base).count() as u8
