@@ -12,7 +12,7 @@ import pytest
 from conftest import generate_manuals
 from mepnet import _brickgeom as _bg
 from mepnet.errors import ConfigError
-from mepnet.eval import evaluate
+from mepnet.eval import drawn_alike, evaluate, pictures_alike
 from mepnet.stage2 import make_predictor
 from mepnet.stage2.abys import AbysPredictor
 from mepnet.stage2.baselines import OracleAbysPredictor, OraclePredictor
@@ -329,6 +329,45 @@ def test_autoregressive_metrics_count_what_a_user_gets():
     step.predictions[k].t = step.placed[k][2]
     assert accuracy(run) == (total - 1, total)
     assert built_exactly(run) is False
+    assert r["manuals_drawn_alike"] == 1.0 and r["undetermined_components"] == 0
+    man = load_manual(bundled_manual())
+    assert drawn_alike(man, run) is False  # 40 half-studs away shows in the last picture
+    step.placed[k] = (ref, yaw, t, colour)
+    assert drawn_alike(man, run) is True
+
+
+def test_pictures_alike_tells_what_no_picture_shows():
+    """Two builds are drawn alike when no picture of the manual tells them apart: a side stud
+    turned inside a ring of bricks is; the same turn in the open, or a turned slope, is not."""
+    from mepnet.infer import bundled_manual
+    from mepnet.manual import load_manual
+
+    man = load_manual(bundled_manual())
+    n = len(man.main.steps)
+    part = _bg.Component.primitive
+
+    def build(name: str, yaw: int, ring: bool) -> list[list]:
+        first = [(part(name), yaw, (0, 3, 0), 4)]
+        if ring:
+            first += [
+                (part("3005"), 0, (dx, 3, dz), 1)
+                for dx in (-2, 0, 2)
+                for dz in (-2, 0, 2)
+                if dx or dz
+            ]
+        return [first] + [[] for _ in range(n - 1)]
+
+    for yaw in range(1, 4):
+        assert pictures_alike(man, None, build("87087", 0, True), build("87087", yaw, True))
+        assert not pictures_alike(man, None, build("87087", 0, False), build("87087", yaw, False))
+    assert pictures_alike(man, None, build("3003", 0, False), build("3003", 1, False))
+    assert not pictures_alike(man, None, build("3039", 0, False), build("3039", 2, False))
+    # from a later step on only: a difference in the first picture alone does not count
+    moved = build("3039", 0, False)
+    moved[0] = []
+    moved[1] = build("3039", 0, False)[0]
+    assert not pictures_alike(man, None, build("3039", 0, False), moved)
+    assert pictures_alike(man, None, build("3039", 0, False), moved, start=1)
 
 
 def test_error_kinds_say_what_went_wrong_with_each_missed_instance():

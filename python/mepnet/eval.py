@@ -22,7 +22,15 @@ Metrics (paper §5.1), written as JSON with the keys of DESIGN §8:
 - ``autoregressive_component_acc`` / ``manuals_exact`` (with ``--autoregressive``): what a user
   gets from ``mepnet.infer``: the share of components placed exactly when every step is built
   on the predictor's own earlier placements, and the share of manuals whose final model is
-  exactly right (parts, colours and voxels, submodules expanded).
+  exactly right (parts, colours and placements, submodules expanded).
+- ``undetermined_components`` / ``component_acc_pictures`` and ``manuals_drawn_alike`` (with
+  ``--autoregressive``): what no picture of the manual can tell apart. A wrong step is
+  *undetermined* when its prediction, put in place of the truth, changes no picture of the
+  build from that step on (drawn by mepnet's renderer with the manual's cameras: e.g. a side
+  stud turned where every picture hides it); ``component_acc_pictures`` counts the components of
+  such steps as right. A plan is *drawn alike* when every step's predicted shape gives the
+  truth's picture (``manuals_drawn_alike``: the share of manuals). Both are reported beside the
+  strict figures, never in their place.
 - ``mtc``: mistakes to complete, the fraction of steps with a wrong prediction given the
   ground-truth base (averaged over manuals).
 - ``seconds_per_step``: the predictor's wall time per step (detection + stage 2).
@@ -57,6 +65,7 @@ from mepnet.manual import ComponentRef, answers_of, iter_manual_dirs, load_manua
 from mepnet.plan import (
     accuracy,
     built_exactly,
+    frame_free,
     predicted_placements,
     run_manual,
     same_shape,
@@ -347,7 +356,7 @@ def evaluate(
     cam_later: list[tuple[float, float]] = []
     cam_seconds: list[float] = []
     cam_failures = cam_steps = 0
-    ar_right = ar_total = manuals_exact = 0
+    ar_right = ar_total = manuals_exact = manuals_alike = undetermined_comps = 0
     ar_revisions = 0
     ar_repair_seconds: list[float] = []
     timeouts = 0
@@ -373,6 +382,7 @@ def evaluate(
             kinds = dict.fromkeys(ERROR_KINDS, 0)
             first_wrong = 0
             wrong_where: list[str] = []
+            undetermined_where: list[str] = []
             for b in run.builds:
                 truth = answers.build(b.key)
                 scale = _diag([(comps[i.component], i.yaw, i.t) for i in truth.instances])
@@ -387,8 +397,12 @@ def evaluate(
                     if not ok:
                         first_wrong += int(s.index == 1)
                         wrong_where.append(f"{b.name} step {s.index}")
-                        for k, v in error_kinds(preds, gt, comps, supported).items():
+                        step_kinds = error_kinds(preds, gt, comps, supported)
+                        for k, v in step_kinds.items():
                             kinds[k] += v
+                        if undetermined(man, run, b, s):
+                            undetermined_where.append(f"{b.name} step {s.index}")
+                            undetermined_comps += sum(step_kinds.values())
                     if s.camera is not None and s.camera.source == "estimated":
                         cam_steps += 1
                         cam_seconds.append(s.camera.seconds)
@@ -418,6 +432,7 @@ def evaluate(
                     "supported_correct": sup_right,
                     "errors": kinds,
                     "wrong": wrong_where,
+                    "undetermined": undetermined_where,
                 }
             )
             if autoregressive:
@@ -432,9 +447,12 @@ def evaluate(
                 ar_total += total
                 exact = bool(built_exactly(ar))
                 manuals_exact += int(exact)
+                alike = bool(drawn_alike(man, ar))
+                manuals_alike += int(alike)
                 per_manual[-1].update(
                     autoregressive_correct=right,
                     built_exactly=exact,
+                    drawn_alike=alike,
                     revisions=sum(len(s.revisions) for b in ar.builds for s in b.steps),
                 )
                 motion = step_motion(ar, ar.main, ar.main.steps[0]) if ar.main.steps else None
@@ -473,6 +491,9 @@ def evaluate(
         "set_cd": cd(set_cd) if autoregressive else None,
         "autoregressive_component_acc": ar_right / max(ar_total, 1) if autoregressive else None,
         "manuals_exact": manuals_exact / len(manuals) if autoregressive else None,
+        "undetermined_components": undetermined_comps,
+        "component_acc_pictures": (scorer.correct + undetermined_comps) / max(scorer.components, 1),
+        "manuals_drawn_alike": manuals_alike / len(manuals) if autoregressive else None,
         "repair": repair if autoregressive else None,
         "revisions": ar_revisions if autoregressive else None,
         "repair_seconds_per_step": float(np.mean(ar_repair_seconds))
@@ -538,6 +559,92 @@ def _camera_metrics(
     }
 
 
+#: Pixels in which two drawings may differ and still be the same picture (:func:`pictures_alike`).
+DRAWN_TOLERANCE_PX = 2
+#: A pixel differs when a colour channel differs by more than this (of 255).
+_DRAWN_LEVEL = 24
+
+
+def pictures_alike(
+    manual: Any,
+    key: int | None,
+    first: Sequence[Sequence[Any]],
+    second: Sequence[Sequence[Any]],
+    start: int = 0,
+) -> bool | None:
+    """Whether two ways to build build ``key`` of ``manual`` (per step the placements
+    ``(component, yaw, t, colour)`` it adds) give the same picture at every step from
+    ``start`` (0-based) on: drawn by mepnet's renderer with the manual's cameras, the two
+    shapes after the step differ in at most :data:`DRAWN_TOLERANCE_PX` pixels. None when a step
+    has no camera."""
+    build = manual.main if key is None else manual.submodules[key]
+    if any(st.camera is None for st in build.steps[start:]):
+        return None
+    w, h = manual.image_size
+    a, b = _bg.Assembly(), _bg.Assembly()
+    for k, (xa, xb) in enumerate(zip(first, second, strict=True)):
+        for x in xa:
+            a.add(*x)
+        for x in xb:
+            b.add(*x)
+        if k < start:
+            continue
+        cam = build.steps[k].camera_object()
+        ra = _bg.render(a, cam, w, h).rgb.astype(np.int16)
+        rb = _bg.render(b, cam, w, h).rgb.astype(np.int16)
+        if int((np.abs(ra - rb).max(axis=-1) > _DRAWN_LEVEL).sum()) > DRAWN_TOLERANCE_PX:
+            return False
+    return True
+
+
+def _true_steps(answers: Any, key: int | None, comps: Any) -> list[list[Any]]:
+    """Per step of build ``key``, the true placements ``(component, yaw, t, colour)`` it adds."""
+    truth = answers.build(key)
+    return [
+        [(comps[i.component], i.yaw, i.t, i.colour) for i in truth.truth(k).placed()]
+        for k in range(len(truth.steps))
+    ]
+
+
+def undetermined(man: Any, run: Any, b: Any, s: Any) -> bool:
+    """Whether a (wrong, teacher-forced) step's prediction changes no picture of the manual
+    ``man`` (with its cameras): every component placed, and the build with the prediction in
+    place of the step's truth draws every picture from the step on as the truth does."""
+    preds = _in_truth_frame(run, b, s)
+    if not preds or not all(p.placed for p in preds):
+        return False
+    answers = answers_of(man)
+    truth = _true_steps(answers, b.key, run.components)
+    k = s.index - 1
+    entries = b.build.steps[k].components
+    other = list(truth)
+    other[k] = [(run.components[p.component], p.yaw, p.t, entries[p.entry].colour) for p in preds]
+    return bool(pictures_alike(man, b.key, truth, other, start=k))
+
+
+def drawn_alike(man: Any, run: Any) -> bool | None:
+    """Whether the plan ``run`` (autoregressive) draws every picture of the manual ``man``
+    (with its cameras) as the truth does, build by build (in the truth's frame: a build with
+    estimated cameras moved by its motion). None when a picture has no camera."""
+    answers = answers_of(man)
+    comps = answers.components(man)
+    for b in run.builds:
+        motion = step_motion(run, b, b.steps[0]) if frame_free(b) and b.steps else None
+        plan = [
+            [
+                moved((run.components[r], y, t, c), motion)
+                if motion
+                else (run.components[r], y, t, c)
+                for r, y, t, c in (p for p in s.placed if p is not None)
+            ]
+            for s in b.steps
+        ]
+        alike = pictures_alike(man, b.key, _true_steps(answers, b.key, comps), plan)
+        if not alike:
+            return alike
+    return True
+
+
 def _in_truth_frame(run: Any, b: Any, s: Any) -> list[Prediction]:
     """A step's predictions moved into the truth's frame (:func:`mepnet.plan.step_motion`;
     the identity with the cameras the manual states)."""
@@ -576,6 +683,18 @@ def format_table(rows: list[dict[str, Any]]) -> str:
             lines.append(
                 f"{'  submodules':14s} {f(r['submodule_component_acc'], True):>8s} {'':>8s} "
                 f"{f(r['submodule_component_cd']):>8s}"
+            )
+        if r.get("component_acc_pictures") is not None:
+            alike = r.get("manuals_drawn_alike")
+            lines.append(
+                f"{'  pictures':14s} {f(r['component_acc_pictures'], True):>8s} (counting as right "
+                f"the {r['undetermined_components']} components wrong only where no picture "
+                "shows it"
+                + (
+                    f"; plans drawing every picture as the truth: {f(alike, True)}%)"
+                    if alike is not None
+                    else ")"
+                )
             )
         if r.get("autoregressive_component_acc") is not None:
             lines.append(
@@ -638,7 +757,7 @@ def format_per_manual(result: dict[str, Any]) -> str:
             + " ".join(f"{m['errors'][k]:>11d}" for k in ERROR_KINDS)
             + (
                 f"  on its own {m['autoregressive_correct']}/{m['components']}"
-                f"{' exact' if m['built_exactly'] else ''}"
+                f"{' exact' if m['built_exactly'] else ' drawn alike' if m.get('drawn_alike') else ''}"
                 if "built_exactly" in m
                 else ""
             )
