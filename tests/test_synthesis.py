@@ -6,6 +6,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 from mepnet.manual import load_manual
 from mepnet.plan import run_manual, step_matches
@@ -174,3 +175,53 @@ def test_a_white_part_on_white_paper_reads_as_changed_inside_its_outline():
     fill_enclosed(got, pic, ctx, None)  # type: ignore[arg-type]
     assert (got[42:58, 42:58] > CHANGE_THRESHOLD).all()
     assert not (got[42:58, 6:22] > CHANGE_THRESHOLD).any()
+
+
+#: A 2x4 plate, then a 1x2 plate on one of its corners.
+CORNER = """0 a plate on a corner
+1 4 0 -8 0 1 0 0 0 1 0 0 0 1 3020.dat
+0 STEP
+1 2 20 -16 10 1 0 0 0 1 0 0 0 1 3023.dat
+0 STEP
+"""
+
+
+def test_a_single_part_is_revisited_when_it_explains_the_change_poorly(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+):
+    """The detector's belief may favour a placement that explains less of what changed (here
+    the same plate one stud over): a single part's step explained poorly is revisited too, and
+    the placement that explains the picture best is kept."""
+    import mepnet.stage2.synthesis as synthesis
+    from mepnet import _brickgeom as _bg
+    from mepnet.manual import answers_of
+    from mepnet.stage2 import StepContext
+    from mepnet.stage2.synthesis import (
+        CHANGE_THRESHOLD,
+        SynthesisType,
+        step_change,
+        step_picture,
+        synthesize,
+    )
+
+    m = load_manual(manual_from_ldraw(CORNER, tmp_path))
+    answers = answers_of(m)
+    comps = answers.components(m)
+    ctx = StepContext(m.main.steps[1], answers.main.assembly_before(1, comps), comps, m.image_size)
+    picture = step_picture(ctx)
+    change, tone = step_change(ctx, picture)
+    (truth,) = answers.main.truth(1).placed()
+    comp = comps[truth.component]
+    decoy = (truth.t[0] - 2, truth.t[1], truth.t[2])  # one stud over, still on the plate
+    assert ctx.base.check(comp, truth.yaw, decoy) == "on_studs"
+    alone = _bg.Assembly()
+    alone.add(comp, truth.yaw, decoy, truth.colour)
+    w, h = m.image_size
+    belief = (_bg.render(alone, ctx.camera, w, h).ids == 0).astype(np.float32)
+    types = [SynthesisType(0, comp, 1, change > CHANGE_THRESHOLD, belief=belief)]
+    monkeypatch.setattr(synthesis, "TYPE_WEIGHT", 5.0)  # the belief outweighs the overlap
+    (p,) = synthesize(ctx, types, picture=picture, tone=tone)
+    assert comp.same_placement(p.yaw, p.t, truth.yaw, truth.t)
+    monkeypatch.setattr(synthesis, "FIRST_CHOICES", 1)  # the greedy alone
+    (q,) = synthesize(ctx, types, picture=picture, tone=tone)
+    assert not comp.same_placement(q.yaw, q.t, truth.yaw, truth.t)  # drawn to the decoy

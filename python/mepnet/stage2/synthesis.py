@@ -244,12 +244,14 @@ def synthesize(
     ``tone``: its tone fit, (2, 3) gain and bias per channel, from :func:`step_change` (none:
     colours compared as rendered).
 
-    A step adding several instances is solved greedily, one instance at a time; while the
-    finished step explains the changed pixels poorly (:func:`_explained` below
-    :data:`WELL_EXPLAINED`), each decision in turn is revisited: the greedy is finished again
-    from each of the next :data:`FIRST_CHOICES` - 1 best choices there, and the solution whose
-    parts together explain the picture best is kept (a stack of equal parts: the part that
-    best fits the whole stack is not the bottom one); before that, the step is solved again
+    A step is solved greedily, one instance at a time; while the finished step explains the
+    changed pixels poorly (:func:`_explained` below :data:`WELL_EXPLAINED`), each decision in
+    turn is revisited: the greedy is finished again from each of the next
+    :data:`FIRST_CHOICES` - 1 best choices there, and the solution whose parts together
+    explain the picture best is kept (a stack of equal parts: the part that best fits the
+    whole stack is not the bottom one; a single part: the candidate ranked first on its own
+    visible pixels may leave more of the change unexplained); before that, a step adding
+    several instances is solved again
     with each later decision of the greedy taken first (:data:`LATER_FIRST`: a stack's bottom,
     hidden by its top, is no first choice, and its top is not valid before it).
 
@@ -301,8 +303,6 @@ def _solve(
     memo: dict[frozenset[First], tuple[Any, list[tuple[float, First]]]] = {}
     preds, taken, options = _greedy(ctx, types, time_limit_s, picture, tone, [], wide, memo)
     score = _explained(ctx, preds, mask, picture, tone)
-    if sum(t.count for t in types) < 2:
-        return preds, score
     # a later decision taken first: a part that shows little until what stands on it is
     # placed (the bottom brick of a stack, hidden by the top one) is never among the first
     # choices, and the top one is not valid before it
