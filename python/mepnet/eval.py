@@ -386,6 +386,7 @@ def evaluate(
             for b in run.builds:
                 truth = answers.build(b.key)
                 scale = _diag([(comps[i.component], i.yaw, i.t) for i in truth.instances])
+                truth_steps: list[list[Any]] | None = None  # made for the first wrong step
                 for s in b.steps:
                     assert s.truth is not None
                     scorer.seconds.append(s.seconds)
@@ -400,7 +401,9 @@ def evaluate(
                         step_kinds = error_kinds(preds, gt, comps, supported)
                         for k, v in step_kinds.items():
                             kinds[k] += v
-                        if undetermined(man, run, b, s):
+                        if truth_steps is None:
+                            truth_steps = _true_steps(answers, b.key, comps)
+                        if undetermined(man, run, b, s, truth_steps):
                             undetermined_where.append(f"{b.name} step {s.index}")
                             undetermined_comps += sum(step_kinds.values())
                     if s.camera is not None and s.camera.source == "estimated":
@@ -606,15 +609,14 @@ def _true_steps(answers: Any, key: int | None, comps: Any) -> list[list[Any]]:
     ]
 
 
-def undetermined(man: Any, run: Any, b: Any, s: Any) -> bool:
+def undetermined(man: Any, run: Any, b: Any, s: Any, truth: list[list[Any]]) -> bool:
     """Whether a (wrong, teacher-forced) step's prediction changes no picture of the manual
     ``man`` (with its cameras): every component placed, and the build with the prediction in
-    place of the step's truth draws every picture from the step on as the truth does."""
+    place of the step's truth draws every picture from the step on as the truth does.
+    ``truth``: the build's true placements per step (:func:`_true_steps`)."""
     preds = _in_truth_frame(run, b, s)
     if not preds or not all(p.placed for p in preds):
         return False
-    answers = answers_of(man)
-    truth = _true_steps(answers, b.key, run.components)
     k = s.index - 1
     entries = b.build.steps[k].components
     other = list(truth)
@@ -631,12 +633,7 @@ def drawn_alike(man: Any, run: Any) -> bool | None:
     for b in run.builds:
         motion = step_motion(run, b, b.steps[0]) if frame_free(b) and b.steps else None
         plan = [
-            [
-                moved((run.components[r], y, t, c), motion)
-                if motion
-                else (run.components[r], y, t, c)
-                for r, y, t, c in (p for p in s.placed if p is not None)
-            ]
+            [moved(x, motion) if motion else x for x in predicted_placements(run, s)]
             for s in b.steps
         ]
         alike = pictures_alike(man, b.key, _true_steps(answers, b.key, comps), plan)
