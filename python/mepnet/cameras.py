@@ -106,6 +106,9 @@ SMALL_BASE = 2
 TIE = 0.05
 #: Placements of a step's one component fitted with the base when the base alone is unsure.
 JOINT_STARTS = 3
+#: Placements (and orientations) ranked by coarse silhouettes whose renders are then matched
+#: with the picture's colours, for the :data:`JOINT_STARTS` fitted.
+JOINT_RANKED = 24
 #: Pixels of the known shape (and of the page around it) a fit samples at most.
 FIT_SAMPLES = 3000
 #: The fit's template outlines, as a share of the renderer's own (0: faces only).
@@ -493,13 +496,19 @@ class BuildCameras:
         """Scale and translation for ``cam``'s orientation that put the shape where the picture
         shows it (:meth:`_match` of the shape rendered once). The cameras of the three best
         distinct starts."""
+        return [c for _, c in self._sweep_scored(shape, pic, cam, wide)]
+
+    def _sweep_scored(
+        self, shape: _bg.Assembly, pic: _Picture, cam: _bg.Camera, wide: bool = True
+    ) -> list[tuple[float, _bg.Camera]]:
+        """:meth:`_sweep` with each start's :meth:`_match` score."""
         n = 2 * WORK_PX
         ref = _with(cam, scale=1.0, translation=(0.0, 0.0)).fitted(
             np.asarray(bounds_corners(shape), dtype=np.float64), 0.9
         )
         render = _bg.render(shape, ref, n, n)
         rgb = render.rgb.astype(np.float32) / 255.0
-        return [c for _, c in self._match(render.ids >= 0, rgb, ref, pic, wide=wide)]
+        return self._match(render.ids >= 0, rgb, ref, pic, wide=wide)
 
     def _register(
         self, prev_pic: _Picture, prev_cam: _bg.Camera, pic: _Picture
@@ -814,15 +823,39 @@ class BuildCameras:
         orients = {(el, az + 90.0 * k, 0.0) for k in range(4)}
         if anchor is not None:
             orients.add((float(anchor.elevation), float(anchor.azimuth), float(anchor.roll)))
-        ranked = _bg.search_placements(base, comp, pic.fg, sorted(orients), WORK_PX, JOINT_STARTS)
-        fits = []
+        ranked = _bg.search_placements(base, comp, pic.fg, sorted(orients), WORK_PX, JOINT_RANKED)
+        if anchor is not None:
+            # manuals mostly only zoom and pan: the anchor's view gets a shortlist of its own
+            own = (float(anchor.elevation), float(anchor.azimuth), float(anchor.roll))
+            seen = {(yaw, tuple(t), round(c.azimuth, 3)) for _, yaw, t, c in ranked}
+            ranked += [
+                r
+                for r in _bg.search_placements(base, comp, pic.fg, [own], WORK_PX, JOINT_RANKED // 2)
+                if (r[1], tuple(r[2]), round(r[3].azimuth, 3)) not in seen
+            ]
+        # box silhouettes only shortlist: each whole is rendered and placed by its colours
+        # (a part mostly hiding a base of another colour: the colours say where)
+        matched: list[tuple[float, _bg.Assembly, _bg.Camera]] = []
         for _, yaw, t, cam in ranked:
             whole = base.copy()
             whole.add(comp, yaw, t, entry.colour)
+            found = self._sweep_scored(whole, pic, cam, wide=False)
+            if found:
+                matched.append((found[0][0], whole, found[0][1]))
+        matched.sort(key=lambda m: -m[0])
+        fits = []
+        tried: list[tuple[float, _bg.Camera]] = []
+        for score, whole, cam in matched:
+            if len(tried) == JOINT_STARTS:
+                break
+            # equal parts turned round look the same: one fit each
+            if any(abs(score - s) < 1e-6 and _camera_distance(cam, c, pic) < 1.0 for s, c in tried):
+                continue
+            tried.append((score, cam))
             fit = self._fit(whole, pic, cam, LEVELS_ROUGH)
             if _full_ok(fit):
                 fits.append((fit, "joint"))
-        return _prefer_front(fits, lambda f: f.agree + f.iou)
+        return _prefer_front(fits, lambda f: f.agree + f.iou, anchor)
 
     def _edge_check(
         self,
@@ -884,17 +917,21 @@ def _start_distance(a: _bg.Camera, b: _bg.Camera, side: int) -> float:
 
 
 def _prefer_front(
-    fits: list[tuple[_bg.CameraFit, str]], score: Any
+    fits: list[tuple[_bg.CameraFit, str]], score: Any, anchor: _bg.Camera | None = None
 ) -> list[tuple[_bg.CameraFit, str]]:
     """Fits best first by ``score``; among those within :data:`TIE` of the best, the one
     nearest a front three-quarter view first (a symmetric or hidden base explains the picture
-    as well from the back: the views instruction tools use decide)."""
+    as well from the back: the views instruction tools use decide), or, given the previous
+    step's ``anchor``, the one nearest its view (manuals mostly only zoom and pan)."""
     fits = sorted(fits, key=lambda fh: -score(fh[0]))
     if len(fits) < 2:
         return fits
     top = score(fits[0][0])
     close = [fh for fh in fits if score(fh[0]) >= top - TIE]
-    first = min(close, key=lambda fh: _front_distance(fh[0].camera.azimuth))
+    if anchor is not None:
+        first = min(close, key=lambda fh: rotation_error(fh[0].camera, anchor))
+    else:
+        first = min(close, key=lambda fh: _front_distance(fh[0].camera.azimuth))
     return [first] + [fh for fh in fits if fh is not first]
 
 
