@@ -823,35 +823,37 @@ class BuildCameras:
         orients = {(el, az + 90.0 * k, 0.0) for k in range(4)}
         if anchor is not None:
             orients.add((float(anchor.elevation), float(anchor.azimuth), float(anchor.roll)))
-        ranked = _bg.search_placements(base, comp, pic.fg, sorted(orients), WORK_PX, JOINT_RANKED)
+        ranked = _bg.search_placements(base, comp, pic.fg, sorted(orients), WORK_PX, 4 * JOINT_RANKED)
         if anchor is not None:
             # manuals mostly only zoom and pan: the anchor's view gets a shortlist of its own
             own = (float(anchor.elevation), float(anchor.azimuth), float(anchor.roll))
-            seen = {(yaw, tuple(t), round(c.azimuth, 3)) for _, yaw, t, c in ranked}
-            ranked += [
-                r
-                for r in _bg.search_placements(base, comp, pic.fg, [own], WORK_PX, JOINT_RANKED // 2)
-                if (r[1], tuple(r[2]), round(r[3].azimuth, 3)) not in seen
-            ]
-        # box silhouettes only shortlist: each whole is rendered and placed by its colours
-        # (a part mostly hiding a base of another colour: the colours say where)
-        matched: list[tuple[float, _bg.Assembly, _bg.Camera]] = []
+            ranked += _bg.search_placements(base, comp, pic.fg, [own], WORK_PX, 2 * JOINT_RANKED)
+        # one of each placement and view (a symmetric part's turns are the same placement)
+        short: list[tuple[int, tuple[int, int, int], _bg.Camera]] = []
         for _, yaw, t, cam in ranked:
+            if len(short) == JOINT_RANKED + JOINT_RANKED // 2:
+                break
+            if not any(
+                abs(_angle(c.azimuth - cam.azimuth)) < 0.01
+                and abs(c.elevation - cam.elevation) < 0.01
+                and comp.same_placement(y, u, yaw, t)
+                for y, u, c in short
+            ):
+                short.append((yaw, tuple(t), cam))
+        # box silhouettes only shortlist: each whole is rendered and placed by its colours
+        # (a part mostly hiding a base of another colour: the colours say where); the best
+        # few by either are fitted
+        wholes: list[tuple[float, float, _bg.Assembly, _bg.Camera]] = []
+        for rank, (yaw, t, cam) in enumerate(short):
             whole = base.copy()
             whole.add(comp, yaw, t, entry.colour)
             found = self._sweep_scored(whole, pic, cam, wide=False)
             if found:
-                matched.append((found[0][0], whole, found[0][1]))
-        matched.sort(key=lambda m: -m[0])
+                wholes.append((-rank, found[0][0], whole, found[0][1]))
+        chosen = sorted(wholes, key=lambda w: -w[1])[:JOINT_STARTS]
+        chosen += [w for w in sorted(wholes, key=lambda w: -w[0])[:JOINT_STARTS] if w not in chosen]
         fits = []
-        tried: list[tuple[float, _bg.Camera]] = []
-        for score, whole, cam in matched:
-            if len(tried) == JOINT_STARTS:
-                break
-            # equal parts turned round look the same: one fit each
-            if any(abs(score - s) < 1e-6 and _camera_distance(cam, c, pic) < 1.0 for s, c in tried):
-                continue
-            tried.append((score, cam))
+        for _, _, whole, cam in chosen:
             fit = self._fit(whole, pic, cam, LEVELS_ROUGH)
             if _full_ok(fit):
                 fits.append((fit, "joint"))
