@@ -823,7 +823,9 @@ class BuildCameras:
         orients = {(el, az + 90.0 * k, 0.0) for k in range(4)}
         if anchor is not None:
             orients.add((float(anchor.elevation), float(anchor.azimuth), float(anchor.roll)))
-        ranked = _bg.search_placements(base, comp, pic.fg, sorted(orients), WORK_PX, 4 * JOINT_RANKED)
+        ranked = _bg.search_placements(
+            base, comp, pic.fg, sorted(orients), WORK_PX, 4 * JOINT_RANKED
+        )
         if anchor is not None:
             # manuals mostly only zoom and pan: the anchor's view gets a shortlist of its own
             own = (float(anchor.elevation), float(anchor.azimuth), float(anchor.roll))
@@ -839,7 +841,7 @@ class BuildCameras:
                 and comp.same_placement(y, u, yaw, t)
                 for y, u, c in short
             ):
-                short.append((yaw, tuple(t), cam))
+                short.append((yaw, (int(t[0]), int(t[1]), int(t[2])), cam))
         # box silhouettes only shortlist: each whole is rendered and placed by its colours
         # (a part mostly hiding a base of another colour: the colours say where); the best
         # few by either are fitted
