@@ -845,17 +845,18 @@ class BuildCameras:
         # box silhouettes only shortlist: each whole is rendered and placed by its colours
         # (a part mostly hiding a base of another colour: the colours say where); the best
         # few by either are fitted
-        wholes: list[tuple[float, float, _bg.Assembly, _bg.Camera]] = []
-        for rank, (yaw, t, cam) in enumerate(short):
+        wholes: list[tuple[float, _bg.Assembly, _bg.Camera]] = []  # in box order
+        for yaw, t, cam in short:
             whole = base.copy()
             whole.add(comp, yaw, t, entry.colour)
             found = self._sweep_scored(whole, pic, cam, wide=False)
             if found:
-                wholes.append((-rank, found[0][0], whole, found[0][1]))
-        chosen = sorted(wholes, key=lambda w: -w[1])[:JOINT_STARTS]
-        chosen += [w for w in sorted(wholes, key=lambda w: -w[0])[:JOINT_STARTS] if w not in chosen]
+                wholes.append((found[0][0], whole, found[0][1]))
+        by_colour = sorted(range(len(wholes)), key=lambda i: -wholes[i][0])[:JOINT_STARTS]
+        by_box = range(min(JOINT_STARTS, len(wholes)))
         fits = []
-        for _, _, whole, cam in chosen:
+        for i in dict.fromkeys([*by_colour, *by_box]):
+            _, whole, cam = wholes[i]
             fit = self._fit(whole, pic, cam, LEVELS_ROUGH)
             if _full_ok(fit):
                 fits.append((fit, "joint"))
