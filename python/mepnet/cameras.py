@@ -43,7 +43,7 @@ from typing import Any
 import numpy as np
 
 from mepnet import _brickgeom as _bg
-from mepnet.frames import Motion, candidate_motions, matches
+from mepnet.frames import IDENTITY, Motion, candidate_motions, matches, symmetries
 from mepnet.geom import LDU_PER_CELL, bounds_corners
 from mepnet.manual import ComponentRef, Step
 
@@ -830,18 +830,27 @@ class BuildCameras:
             # manuals mostly only zoom and pan: the anchor's view gets a shortlist of its own
             own = (float(anchor.elevation), float(anchor.azimuth), float(anchor.roll))
             ranked += _bg.search_placements(base, comp, pic.fg, [own], WORK_PX, 2 * JOINT_RANKED)
-        # one of each placement and view (a symmetric part's turns are the same placement)
+        # one of each whole and view: a symmetric part's turns are the same placement, and a
+        # base the same after a turn shows the same whole turned from the view turned back
+        # (C(az) R_k = C(az - 90k)), so a 2x2 brick's four views do not fill the shortlist
+        motions = [
+            IDENTITY,
+            *symmetries([(c, y, u, base.colour(i)) for i, c, y, u in base.instances()]),
+        ]
         short: list[tuple[int, tuple[int, int, int], _bg.Camera]] = []
         for _, yaw, t, cam in ranked:
             if len(short) == JOINT_RANKED + JOINT_RANKED // 2:
                 break
+            t = (int(t[0]), int(t[1]), int(t[2]))
+            back = [(m.turn, m.inverse().apply(yaw, t)) for m in motions]
             if not any(
-                abs(_angle(c.azimuth - cam.azimuth)) < 0.01
-                and abs(c.elevation - cam.elevation) < 0.01
-                and comp.same_placement(y, u, yaw, t)
+                abs(c.elevation - cam.elevation) < 0.01
+                and abs(_angle(cam.azimuth - 90.0 * turn - c.azimuth)) < 0.01
+                and comp.same_placement(y, u, y2, t2)
                 for y, u, c in short
+                for turn, (y2, t2) in back
             ):
-                short.append((yaw, (int(t[0]), int(t[1]), int(t[2])), cam))
+                short.append((yaw, t, cam))
         # box silhouettes only shortlist: each whole is rendered and placed by its colours
         # (a part mostly hiding a base of another colour: the colours say where); the best
         # few by either are fitted

@@ -283,6 +283,9 @@ def _canonical(
 
 #: Where the cameras come from: the manual (``given``) or the pictures (``estimated``).
 CAMERAS = ("given", "estimated")
+#: An estimated camera whose mean reprojection error exceeds this many pixels is listed per
+#: manual (``camera_off``: step -> [degrees, pixels]; None where no camera was estimated).
+CAMERA_OFF_PX = 1.0
 
 
 def _camera_errors(man: Any, run: Any, b: Any, s: Any) -> tuple[float, float] | None:
@@ -383,6 +386,7 @@ def evaluate(
             first_wrong = 0
             wrong_where: list[str] = []
             undetermined_where: list[str] = []
+            camera_off: dict[str, Any] = {}  # estimated cameras off by > CAMERA_OFF_PX, or none
             for b in run.builds:
                 truth = answers.build(b.key)
                 scale = _diag([(comps[i.component], i.yaw, i.t) for i in truth.instances])
@@ -413,6 +417,11 @@ def evaluate(
                         err = _camera_errors(man, run, b, s)
                         if err is not None:
                             (cam_first if s.index == 1 else cam_later).append(err)
+                        where = f"{b.name} step {s.index}"
+                        if s.camera.camera is None:
+                            camera_off[where] = None
+                        elif err is not None and err[1] > CAMERA_OFF_PX:
+                            camera_off[where] = [round(err[0], 2), round(err[1], 2)]
             mtc.append(wrong / max(len(man.all_steps()), 1))
             n, right, sup, sup_right = (
                 now - then
@@ -436,6 +445,7 @@ def evaluate(
                     "errors": kinds,
                     "wrong": wrong_where,
                     "undetermined": undetermined_where,
+                    **({"camera_off": camera_off} if camera == "estimated" else {}),
                 }
             )
             if autoregressive:
