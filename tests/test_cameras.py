@@ -355,3 +355,24 @@ def test_a_symmetric_base_does_not_fill_the_joint_shortlist_with_turned_copies(t
     ]
     assert min(rotation_error(got, c) for c in turned) < 1.0, got
     assert abs(got.scale / cam.scale - 1.0) < 0.02, got
+
+
+def test_edge_orientation_is_not_pulled_by_upright_edges():
+    """A round brick under a corner plate, a 1x1 tile and a 1x3 tile: the brick's upright
+    sides are the strongest straight edges of the drawing, yet they are the y axis from every
+    view (roll 0). The plates' edges give the view within 2 degrees (counted, the upright
+    edges made it 5 degrees of elevation and a front view, 14 and 35 degrees off)."""
+    from mepnet.cameras import edge_orientation
+
+    asm = _bg.Assembly()
+    for part, yaw, t, colour in [
+        ("3941", 1, (1, 3, 0), 2),
+        ("2420", 2, (2, 4, -1), 14),
+        ("3070", 3, (0, 4, 1), 71),
+        ("63864", 0, (0, 5, -1), 2),
+    ]:
+        asm.add(_bg.Component.primitive(part), yaw, t, colour)
+    cam = _bg.Camera(18.86, 305.14, 0.0, 0.0199, (0.262, -0.422))
+    el, az = edge_orientation(_bg.render(asm, cam, 256, 256).rgb)
+    assert abs(el - cam.elevation) < 2.0, (el, az)
+    assert abs((az - cam.azimuth + 45.0) % 90.0 - 45.0) < 2.0, (el, az)

@@ -74,6 +74,8 @@ SEARCH_AZIMUTHS = tuple(float(a) for a in range(0, 360, 10))
 EDGE_BINS = 360
 EDGE_ELEVATIONS = (5.0, 60.0)
 EDGE_STEP = 0.25
+#: Edges within this many degrees of vertical are left out of :func:`edge_orientation`.
+EDGE_VERTICAL_DEG = 4.0
 #: Two orientations closer than this (degrees of elevation, or of azimuth modulo a quarter
 #: turn) are the same as far as edges can tell.
 ORIENTATION_TOL = 1.5
@@ -250,11 +252,18 @@ def edge_orientation(rgb: np.ndarray) -> tuple[float, float]:
     if _EDGE_GRID is None:
         _EDGE_GRID = _edge_grid()
     els, azs, bin_x, bin_z = _EDGE_GRID
-    hist = _bg.edge_directions(rgb, EDGE_BINS)
-    r = 6
-    kernel = np.exp(-0.5 * (np.arange(-r, r + 1) / 1.5) ** 2)
+    hist = np.asarray(_bg.edge_directions(rgb, EDGE_BINS), dtype=np.float64).copy()
+    # vertical edges are the lattice's y axis from every view with roll 0: they say nothing
+    # about the view, and counted they pull towards views with x or z drawn upright (a round
+    # brick's sides made the edges of its top plate lose to them)
+    v = int(EDGE_VERTICAL_DEG * EDGE_BINS / 180.0)
+    hist[EDGE_BINS // 2 - v : EDGE_BINS // 2 + v + 1] = 0.0
+    r = 12
+    kernel = np.exp(-0.5 * (np.arange(-r, r + 1) / 3.0) ** 2)
     smooth = np.convolve(np.concatenate([hist[-r:], hist, hist[:r]]), kernel, mode="valid")
-    score = smooth[bin_x] + smooth[bin_z]
+    # both axes must be drawn: one strong direction (a cylinder's horizontal tangents) alone
+    # does not make a view
+    score = np.sqrt(smooth[bin_x] * smooth[bin_z])
     i, j = np.unravel_index(int(np.argmax(score)), score.shape)
     return float(els[i]), float(azs[j])
 
