@@ -239,6 +239,36 @@ def test_train_head_direct3d_and_evaluate_its_weights(tmp_path: Path, manuals: P
     m = json.loads((tmp_path / "m.json").read_text())
     assert m["predictor"] == "direct3d" and m["n_components"] > 0
     assert 0.0 <= m["component_acc"] <= 1.0
+    reg = m["regression"]  # how near the regressed translations come, before quantisation
+    assert 0 < reg["instances"] <= m["n_components"]
+    assert len(reg["median_abs_error_cells"]) == 3
+    assert 0.0 <= reg["rounds_to_truth"] <= reg["truth_in_neighbourhood"] <= 1.0
+    assert "within the quantiser's reach" in r.stdout
+
+
+def test_regression_errors_are_measured_against_the_nearest_true_instance():
+    from mepnet.eval import _regression_errors, _regression_metrics
+    from mepnet.manual import ComponentRef
+    from mepnet.stage2.base import Prediction
+
+    brick, plate = ComponentRef("3001", None), ComponentRef("3020", None)
+    gt = [(brick, 0, (0, 0, 0)), (brick, 0, (8, 0, 0)), (plate, 1, (0, 3, 0))]
+    preds = [
+        Prediction(0, brick, 0, (8, 0, 0), extra={"regressed": [7.6, 0.2, -0.4]}),
+        Prediction(0, brick, 0, (0, 0, 0), extra={"regressed": [0.3, -1.2, 0.0]}),
+        Prediction(1, plate, 1, None, extra={"regressed": [0.0, 3.0, 9.0]}),
+        Prediction(1, plate, 1, (0, 3, 0)),  # no regression (another predictor's)
+    ]
+    errs = _regression_errors(preds, gt)
+    assert len(errs) == 3
+    np.testing.assert_allclose(errs[0], [-0.4, 0.2, -0.4])  # the brick at x=8, not at 0
+    np.testing.assert_allclose(errs[1], [0.3, -1.2, 0.0])
+    m = _regression_metrics(errs)
+    assert m is not None and m["instances"] == 3
+    assert m["rounds_to_truth"] == pytest.approx(1 / 3)
+    assert m["truth_in_neighbourhood"] == pytest.approx(2 / 3)  # z 9 cells off is beyond it
+    np.testing.assert_allclose(m["median_abs_error_cells"], [0.3, 0.2, 0.4])
+    assert _regression_metrics([]) is None
 
 
 def test_weights_that_do_not_fit_are_refused_in_one_line(tmp_path: Path, manuals: Path):

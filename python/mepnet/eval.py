@@ -363,6 +363,7 @@ def evaluate(
     ar_revisions = 0
     ar_repair_seconds: list[float] = []
     timeouts = 0
+    regressed: list[np.ndarray] = []  # Direct3D: regressed minus true translation (cells)
     per_manual: list[dict[str, Any]] = []
     bar = tqdm(
         total=sum(len(m.all_steps()) * (2 if autoregressive else 1) for m in manuals),
@@ -397,6 +398,8 @@ def evaluate(
                     gt = [(i.component, i.yaw, i.t) for i in s.truth.placed()]
                     supported = [v.attach != "unsupported" for v in s.truth.answers.views]
                     preds = _in_truth_frame(run, b, s)
+                    if camera == "given":
+                        regressed += _regression_errors(preds, gt)
                     ok = scorer.step(preds, gt, comps, scale, supported)
                     wrong += int(not ok)
                     if not ok:
@@ -531,6 +534,41 @@ def evaluate(
         "errors": {k: sum(m["errors"][k] for m in per_manual) for k in ERROR_KINDS},
         "per_manual": per_manual,
         **_camera_metrics(camera, cam_first, cam_later, cam_seconds, cam_failures, cam_steps),
+        "regression": _regression_metrics(regressed),
+    }
+
+
+def _regression_errors(preds: Sequence[Prediction], gt: Sequence[Any]) -> list[np.ndarray]:
+    """For each prediction carrying a regressed translation (``extra["regressed"]``: Direct3D)
+    the regressed minus the true translation (lattice cells) of the nearest true instance of
+    its component."""
+    out = []
+    for p in preds:
+        r = p.extra.get("regressed")
+        near = [np.asarray(t, dtype=np.float64) for ref, _, t in gt if ref == p.component]
+        if r is None or not near:
+            continue
+        r = np.asarray(r, dtype=np.float64)
+        out.append(r - min(near, key=lambda t: float(np.abs(t - r).sum())))
+    return out
+
+
+def _regression_metrics(errors: list[np.ndarray]) -> dict[str, Any] | None:
+    """How near a regressing predictor's translations come to the truth before quantisation
+    (given cameras): median absolute error per axis (cells: x, z half-studs, y plates), the
+    share that rounds to the true cell, and the share whose rounding has the truth within the
+    quantiser's neighbourhood (:data:`mepnet.stage2.direct3d.NEIGHBOURHOOD`)."""
+    if not errors:
+        return None
+    from mepnet.stage2.direct3d import NEIGHBOURHOOD
+
+    e = np.array(errors)
+    off = np.abs(np.rint(e))  # the rounding's distance from the truth, per axis
+    return {
+        "instances": len(e),
+        "median_abs_error_cells": [float(v) for v in np.median(np.abs(e), axis=0)],
+        "rounds_to_truth": float((off == 0).all(axis=1).mean()),
+        "truth_in_neighbourhood": float((off <= np.array(NEIGHBOURHOOD)).all(axis=1).mean()),
     }
 
 
@@ -856,6 +894,13 @@ def _main(args: argparse.Namespace) -> int:
         not args.no_repair,
     )
     print(format_table([result]))
+    if (reg := result["regression"]) is not None:
+        med = ", ".join(f"{v:.2f}" for v in reg["median_abs_error_cells"])
+        print(
+            f"regressed translations ({reg['instances']}): median error {med} cells (x, y, z); "
+            f"{100 * reg['rounds_to_truth']:.1f}% round to the truth, "
+            f"{100 * reg['truth_in_neighbourhood']:.1f}% have it within the quantiser's reach"
+        )
     if args.per_manual:
         print(format_per_manual(result))
     if args.json:
