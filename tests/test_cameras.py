@@ -376,3 +376,31 @@ def test_edge_orientation_is_not_pulled_by_upright_edges():
     el, az = edge_orientation(_bg.render(asm, cam, 256, 256).rgb)
     assert abs(el - cam.elevation) < 2.0, (el, az)
     assert abs((az - cam.azimuth + 45.0) % 90.0 - 45.0) < 2.0, (el, az)
+
+
+def test_the_joint_search_places_two_components_over_a_hidden_base(tmp_path: Path):
+    """A 1x2 plate half under a 2x2 tile, a corner panel hanging under the tile, zoomed out
+    2.3 times from the previous picture: the plate alone fits nowhere. Camera and both
+    placements searched together (the panel can only be placed once the tile is) find the
+    view within a degree and the zoom within 2% (one component only: no camera at all)."""
+    from mepnet.cameras import rotation_error
+    from mepnet.manual.page import ComponentRef, Step, StepComponent
+
+    plate, tile, panel = (ComponentRef(p, None) for p in ("3023", "3068b", "6231"))
+    comps = {r: _bg.Component.primitive(r.part) for r in (plate, tile, panel)}
+    base = _bg.Assembly()
+    base.add(comps[plate], 3, (1, 1, -6), 25)
+    whole = base.copy()
+    whole.add(comps[tile], 1, (0, 2, -4), 1)
+    whole.add(comps[panel], 1, (0, 3, -1), 28)
+    cam = _bg.Camera(32.88, 40.42, 0.0, 0.01527, (-0.191, -0.237))
+    path = tmp_path / "step_2.png"
+    Image.fromarray(_bg.render(whole, cam, 256, 256).rgb).save(path)
+    step = Step(2, path, None, [StepComponent(tile, 1, 1), StepComponent(panel, 1, 28)], (256, 256))
+    est = BuildCameras((256, 256))
+    anchor = _bg.Camera(32.88, 40.42, 0.0, 0.03541, (-1.527, -0.947))
+    fits = est._joint(step, base, comps, est.picture(step), anchor)
+    assert fits
+    got = fits[0][0].camera
+    assert rotation_error(got, cam) < 1.0, got
+    assert abs(got.scale / cam.scale - 1.0) < 0.02, got

@@ -43,7 +43,7 @@ from typing import Any
 import numpy as np
 
 from mepnet import _brickgeom as _bg
-from mepnet.frames import IDENTITY, Motion, candidate_motions, matches, symmetries
+from mepnet.frames import IDENTITY, Motion, candidate_motions, matches, placement_key, symmetries
 from mepnet.geom import LDU_PER_CELL, bounds_corners
 from mepnet.manual import ComponentRef, Step
 
@@ -106,11 +106,14 @@ CONFIDENT_INSIDE, CONFIDENT_AGREE = 0.97, 0.8
 SMALL_BASE = 2
 #: Fits whose scores differ by less than this are ties (broken by the front-view prior).
 TIE = 0.05
-#: Placements of a step's one component fitted with the base when the base alone is unsure.
+#: Wholes (base and the step's placed components) fitted when the base alone is unsure.
 JOINT_STARTS = 3
 #: Placements (and orientations) ranked by coarse silhouettes whose renders are then matched
 #: with the picture's colours, for the :data:`JOINT_STARTS` fitted.
 JOINT_RANKED = 24
+#: The joint search covers steps adding at most this many component instances; with two, the
+#: second component's best placements kept for each of the first's.
+JOINT_PARTS, JOINT_PAIR_SECOND = 2, 2
 #: Pixels of the known shape (and of the page around it) a fit samples at most.
 FIT_SAMPLES = 3000
 #: The fit's template outlines, as a share of the renderer's own (0: faces only).
@@ -817,56 +820,48 @@ class BuildCameras:
         pic: _Picture,
         anchor: _bg.Camera | None,
     ) -> list[tuple[_bg.CameraFit, str]]:
-        """For a step that adds one component to a base the picture says little about (small,
-        round, hidden behind the new part): camera and placement together. Every valid
-        placement of the component on the base, seen from the anchor's orientation and the
-        edges' (each quarter turn), is framed to the drawing as a coarse silhouette; the best
-        few wholes are fitted to the picture, which shows exactly them. Fits that explain it
-        well, best first."""
-        entries = [c for c in step.components if c.component in components]
-        if len(entries) != 1 or entries[0].count != 1:
+        """For a step that adds one or two components to a base the picture says little about
+        (small, round, hidden behind the new parts): camera and placements together. Every
+        valid placement of the first component on the base, seen from the anchor's orientation
+        and the edges' (each quarter turn), is framed to the drawing as a coarse silhouette;
+        with two, the second's best placements on base and first from the same view (both
+        orders). The best few wholes are rendered and placed by their colours and fitted to the
+        picture, which shows exactly them. Fits that explain it well, best first."""
+        insts = [e for e in step.components for _ in range(e.count)]
+        if not 1 <= len(insts) <= JOINT_PARTS or any(e.component not in components for e in insts):
             return []
-        entry = entries[0]
-        comp = components[entry.component]
         el, az = pic.edge_view()
         orients = {(el, az + 90.0 * k, 0.0) for k in range(4)}
+        own = None
         if anchor is not None:
-            orients.add((float(anchor.elevation), float(anchor.azimuth), float(anchor.roll)))
-        ranked = _bg.search_placements(
-            base, comp, pic.fg, sorted(orients), WORK_PX, 4 * JOINT_RANKED
-        )
-        if anchor is not None:
-            # manuals mostly only zoom and pan: the anchor's view gets a shortlist of its own
             own = (float(anchor.elevation), float(anchor.azimuth), float(anchor.roll))
-            ranked += _bg.search_placements(base, comp, pic.fg, [own], WORK_PX, 2 * JOINT_RANKED)
-        # one of each whole and view: a symmetric part's turns are the same placement, and a
-        # base the same after a turn shows the same whole turned from the view turned back
-        # (C(az) R_k = C(az - 90k)), so a 2x2 brick's four views do not fill the shortlist
+            orients.add(own)
+        # a base the same after a turn shows the same whole turned from the view turned back
+        # (C(az) R_k = C(az - 90k)): counted once, a 2x2 brick's four views do not fill the
+        # shortlist
         motions = [
             IDENTITY,
             *symmetries([(c, y, u, base.colour(i)) for i, c, y, u in base.instances()]),
         ]
-        short: list[tuple[int, tuple[int, int, int], _bg.Camera]] = []
-        for _, yaw, t, cam in ranked:
-            if len(short) == JOINT_RANKED + JOINT_RANKED // 2:
-                break
-            t = (int(t[0]), int(t[1]), int(t[2]))
-            back = [(m.turn, m.inverse().apply(yaw, t)) for m in motions]
-            if not any(
-                abs(c.elevation - cam.elevation) < 0.01
-                and abs(_angle(cam.azimuth - 90.0 * turn - c.azimuth)) < 0.01
-                and comp.same_placement(y, u, y2, t2)
-                for y, u, c in short
-                for turn, (y2, t2) in back
-            ):
-                short.append((yaw, t, cam))
+        size = JOINT_RANKED + JOINT_RANKED // 2
+        if len(insts) == 1:
+            short = self._joint_short(
+                base, components[insts[0].component], pic, orients, own, motions, size
+            )
+            wholes_box = []
+            for yaw, t, cam in short:
+                whole = base.copy()
+                whole.add(components[insts[0].component], yaw, t, insts[0].colour)
+                wholes_box.append((whole, cam))
+        else:
+            wholes_box = self._joint_pairs(
+                base, components, insts, pic, orients, own, motions, size
+            )
         # box silhouettes only shortlist: each whole is rendered and placed by its colours
         # (a part mostly hiding a base of another colour: the colours say where); the best
         # few by either are fitted
         wholes: list[tuple[float, _bg.Assembly, _bg.Camera]] = []  # in box order
-        for yaw, t, cam in short:
-            whole = base.copy()
-            whole.add(comp, yaw, t, entry.colour)
+        for whole, cam in wholes_box:
             found = self._sweep_scored(whole, pic, cam, wide=False)
             if found:
                 wholes.append((found[0][0], whole, found[0][1]))
@@ -879,6 +874,94 @@ class BuildCameras:
             if _full_ok(fit):
                 fits.append((fit, "joint"))
         return _prefer_front(fits, lambda f: f.agree + f.iou, anchor)
+
+    def _joint_short(
+        self,
+        base: _bg.Assembly,
+        comp: _bg.Component,
+        pic: _Picture,
+        orients: set[tuple[float, float, float]],
+        own: tuple[float, float, float] | None,
+        motions: list[Motion],
+        size: int,
+    ) -> list[tuple[int, tuple[int, int, int], _bg.Camera]]:
+        """The ``size`` best distinct (placement, view) of one component on the base by framed
+        box silhouettes, in that order; the anchor's view (``own``) gets a shortlist of its own
+        (manuals mostly only zoom and pan). Distinct: a symmetric part's turns are the same
+        placement, and one view of a base with symmetries ``motions`` shows what the turned
+        view shows with the placement turned."""
+        ranked = _bg.search_placements(
+            base, comp, pic.fg, sorted(orients), WORK_PX, 4 * JOINT_RANKED
+        )
+        if own is not None:
+            ranked += _bg.search_placements(base, comp, pic.fg, [own], WORK_PX, 2 * JOINT_RANKED)
+        short: list[tuple[int, tuple[int, int, int], _bg.Camera]] = []
+        for _, yaw, t, cam in ranked:
+            if len(short) == size:
+                break
+            t = (int(t[0]), int(t[1]), int(t[2]))
+            back = [(m.turn, m.inverse().apply(yaw, t)) for m in motions]
+            if not any(
+                abs(c.elevation - cam.elevation) < 0.01
+                and abs(_angle(cam.azimuth - 90.0 * turn - c.azimuth)) < 0.01
+                and comp.same_placement(y, u, y2, t2)
+                for y, u, c in short
+                for turn, (y2, t2) in back
+            ):
+                short.append((yaw, t, cam))
+        return short
+
+    def _joint_pairs(
+        self,
+        base: _bg.Assembly,
+        components: dict[ComponentRef, _bg.Component],
+        insts: list[Any],
+        pic: _Picture,
+        orients: set[tuple[float, float, float]],
+        own: tuple[float, float, float] | None,
+        motions: list[Motion],
+        size: int,
+    ) -> list[tuple[_bg.Assembly, _bg.Camera]]:
+        """Wholes of a step adding two components, best box silhouette first: the first
+        component's shortlist (either may be the first), then the second's best placements
+        on base and first from the same view; each whole once."""
+        orders = [insts, insts[::-1]] if insts[0] != insts[1] else [insts]
+        found: dict[Any, tuple[float, _bg.Assembly, _bg.Camera]] = {}
+        for a, b in orders:
+            comp_a, comp_b = components[a.component], components[b.component]
+            for yaw, t, cam in self._joint_short(
+                base, comp_a, pic, orients, own, motions, size // len(orders)
+            ):
+                with_a = base.copy()
+                with_a.add(comp_a, yaw, t, a.colour)
+                view = (float(cam.elevation), float(cam.azimuth), float(cam.roll))
+                kept: list[tuple[int, tuple[int, int, int]]] = []
+                for score, yb, tb, cb in _bg.search_placements(
+                    with_a, comp_b, pic.fg, [view], WORK_PX, 4 * JOINT_PAIR_SECOND
+                ):
+                    if len(kept) == JOINT_PAIR_SECOND:
+                        break
+                    tb = (int(tb[0]), int(tb[1]), int(tb[2]))
+                    if any(comp_b.same_placement(y, u, yb, tb) for y, u in kept):
+                        continue
+                    kept.append((yb, tb))
+                    key = (
+                        round(view[0], 2),
+                        round(view[1] % 360.0, 2),
+                        tuple(
+                            sorted(
+                                placement_key((comp_a, yaw, t, a.colour))
+                                + placement_key((comp_b, yb, tb, b.colour))
+                            )
+                        ),
+                    )
+                    if key in found and found[key][0] >= score:
+                        continue
+                    whole = with_a.copy()
+                    whole.add(comp_b, yb, tb, b.colour)
+                    found[key] = (float(score), whole, cb)
+        best = sorted(found.values(), key=lambda f: -f[0])[:size]
+        return [(whole, cam) for _, whole, cam in best]
 
     def _edge_check(
         self,
