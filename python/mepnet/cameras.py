@@ -845,13 +845,11 @@ class BuildCameras:
         ]
         size = JOINT_RANKED + JOINT_RANKED // 2
         if len(insts) == 1:
-            short = self._joint_short(
-                base, components[insts[0].component], pic, orients, own, motions, size
-            )
+            comp, colour = components[insts[0].component], insts[0].colour
             wholes_box = []
-            for yaw, t, cam in short:
+            for yaw, t, cam in self._joint_short(base, comp, pic, orients, own, motions, size):
                 whole = base.copy()
-                whole.add(components[insts[0].component], yaw, t, insts[0].colour)
+                whole.add(comp, yaw, t, colour)
                 wholes_box.append((whole, cam))
         else:
             wholes_box = self._joint_pairs(

@@ -544,11 +544,12 @@ def _regression_errors(preds: Sequence[Prediction], gt: Sequence[Any]) -> list[n
     its component."""
     out = []
     for p in preds:
-        r = p.extra.get("regressed")
+        if p.extra.get("regressed") is None:
+            continue  # (every other predictor)
         near = [np.asarray(t, dtype=np.float64) for ref, _, t in gt if ref == p.component]
-        if r is None or not near:
+        if not near:
             continue
-        r = np.asarray(r, dtype=np.float64)
+        r = np.asarray(p.extra["regressed"], dtype=np.float64)
         out.append(r - min(near, key=lambda t: float(np.abs(t - r).sum())))
     return out
 
