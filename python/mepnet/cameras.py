@@ -114,6 +114,9 @@ JOINT_RANKED = 24
 #: The joint search covers steps adding at most this many component instances; with two, the
 #: second component's best placements kept for each of the first's.
 JOINT_PARTS, JOINT_PAIR_SECOND = 2, 2
+#: A joint fit whose colours agree this well is offered before the base's own fits; rougher
+#: ones after them.
+JOINT_STRONG = 0.85
 #: Pixels of the known shape (and of the page around it) a fit samples at most.
 FIT_SAMPLES = 3000
 #: The fit's template outlines, as a share of the renderer's own (0: faces only).
@@ -534,7 +537,8 @@ class BuildCameras:
             return None
         cam = found[0][1]
         sil, tpl = self._resampled(prev_pic.fg, ref_rgb, prev_cam, cam, pic.small.shape)
-        tx, ty = cam.translation  # the match's offset, in pixels of the reduced picture
+        # the match's offset (NDC) from the reference's centre, to pixels of the reduced picture
+        tx, ty = _offset(prev_cam, cam)
         h, w = pic.small.shape
         shift = (round(-ty * h / 2.0), round(tx * w / 2.0))
         moved_sil = np.roll(sil, shift, axis=(0, 1))
@@ -554,16 +558,17 @@ class BuildCameras:
         cam: _bg.Camera,
         shape: tuple[int, int],
     ) -> tuple[np.ndarray, np.ndarray]:
-        """A reference silhouette and colours (seen by camera ``ref``) as camera ``cam`` (same
-        orientation, translation ignored) sees them, on a grid of ``shape`` (nearest)."""
+        """A reference silhouette and colours (seen by camera ``ref``) at ``cam``'s scale (same
+        orientation), on a grid of ``shape`` (nearest) centred where the reference's is: a
+        camera that puts the reference's centre at the grid's centre has the translation
+        :func:`_centred` gives, and an offset from there moves the reference by that offset."""
         h, w = shape
         ny, nx = sil_ref.shape
-        k = ref.scale / cam.scale  # work NDC (translation 0) -> reference NDC
-        rx, ry = ref.translation
+        k = ref.scale / cam.scale  # work NDC (from the centre) -> reference NDC
         ndc_x = (np.arange(w) + 0.5) / w * 2 - 1
         ndc_y = 1 - (np.arange(h) + 0.5) / h * 2
-        cols = np.floor((k * ndc_x + rx + 1) / 2 * nx).astype(np.int64)
-        rows = np.floor((1 - (k * ndc_y + ry)) / 2 * ny).astype(np.int64)
+        cols = np.floor((k * ndc_x + 1) / 2 * nx).astype(np.int64)
+        rows = np.floor((1 - k * ndc_y) / 2 * ny).astype(np.int64)
         ok = np.outer((rows >= 0) & (rows < ny), (cols >= 0) & (cols < nx))
         at = np.ix_(np.clip(rows, 0, ny - 1), np.clip(cols, 0, nx - 1))
         sil = (sil_ref[at] & ok).astype(np.float32)
@@ -612,7 +617,8 @@ class BuildCameras:
                 corr[max(dy - 3, 0) : dy + 4, max(dx - 3, 0) : dx + 4] = -np.inf
                 dy = dy - pad[0] if dy >= h else dy
                 dx = dx - pad[1] if dx >= w else dx
-                out.append((score, _with(c, translation=(2.0 * dx / w, -2.0 * dy / h))))
+                cx, cy = _centred(ref, c.scale)
+                out.append((score, _with(c, translation=(cx + 2.0 * dx / w, cy - 2.0 * dy / h))))
             return out
 
         cam = ref
@@ -776,7 +782,8 @@ class BuildCameras:
             yield from offer(first, _part_ok)
         # the base may be mostly hidden by the new part, or say little about the view: camera
         # and placement together
-        yield from offer(self._joint(step, base, components, pic, anchor), _full_ok)
+        joint = self._joint(step, base, components, pic, anchor)
+        yield from offer(joint, lambda f: f.agree >= JOINT_STRONG and _full_ok(f))
         more = list(first)
         if anchor is not None:
             # the base may be turned round: other starts and quarter turns
@@ -792,6 +799,9 @@ class BuildCameras:
                     more.append((self._fit_inside(base, pic, start), "turned"))
         more.sort(key=lambda fh: -_part_score(fh[0]))
         yield from offer(more, _part_ok)
+        # wholes that explain the picture only roughly: after the base's own fits (a step's
+        # parts may stand apart from the base, where the joint search does not look)
+        yield from offer(joint, _full_ok)
         if not yielded:
             more += [(f, "searched") for f in self._search_inside(base, pic)]
             more.sort(key=lambda fh: -_part_score(fh[0]))
@@ -1003,6 +1013,20 @@ class BuildCameras:
             for cam in starts
             for start in self._sweep(base, pic, cam)[:1]
         ]
+
+
+def _centred(ref: _bg.Camera, scale: float) -> tuple[float, float]:
+    """The translation that, at ``scale`` and ``ref``'s orientation, puts what ``ref`` sees at
+    its picture's centre at the picture's centre (NDC scales with the camera's scale)."""
+    k = scale / ref.scale
+    return (k * ref.translation[0], k * ref.translation[1])
+
+
+def _offset(ref: _bg.Camera, cam: _bg.Camera) -> tuple[float, float]:
+    """How far (NDC) ``cam`` moves the reference of :meth:`BuildCameras._resampled` from the
+    grid's centre."""
+    cx, cy = _centred(ref, cam.scale)
+    return (cam.translation[0] - cx, cam.translation[1] - cy)
 
 
 def _alone(components: dict[ComponentRef, _bg.Component], entry: Any) -> _bg.Assembly:
