@@ -61,7 +61,7 @@ FIRST_AZIMUTH = 225.0
 #: orientations that fit equally well (a symmetric shape).
 FRONT_AZIMUTHS = (315.0, 45.0)
 #: Foreground: page-colour distance (0..255) and the smallest kept speck (pixels).
-FG_THRESHOLD = 30.0
+FG_THRESHOLD = 20.0
 FG_MIN_AREA = 16
 #: A picture with less drawing than this share of its pixels is blank.
 MIN_DRAWING = 0.001
@@ -111,6 +111,9 @@ JOINT_STARTS = 3
 #: Placements (and orientations) ranked by coarse silhouettes whose renders are then matched
 #: with the picture's colours, for the :data:`JOINT_STARTS` fitted.
 JOINT_RANKED = 24
+#: Placements the boxes pre-select for the joint search's rendered silhouettes, in units of
+#: :data:`JOINT_RANKED`.
+JOINT_BOXES = 8
 #: The joint search covers steps adding at most this many component instances; with two, the
 #: second component's best placements kept for each of the first's.
 JOINT_PARTS, JOINT_PAIR_SECOND = 2, 2
@@ -899,12 +902,22 @@ class BuildCameras:
         placement, and one view of a base with symmetries ``motions`` shows what the turned
         view shows with the placement turned."""
         ranked = _bg.search_placements(
-            base, comp, pic.fg, sorted(orients), WORK_PX, 4 * JOINT_RANKED
+            base, comp, pic.fg, sorted(orients), WORK_PX, JOINT_BOXES * JOINT_RANKED
         )
         if own is not None:
             ranked += _bg.search_placements(base, comp, pic.fg, [own], WORK_PX, 2 * JOINT_RANKED)
-        short: list[tuple[int, tuple[int, int, int], _bg.Camera]] = []
+        # boxes only pre-select (a slope's box is its whole bounding box): ranked again by the
+        # whole's rendered silhouette, framed to the drawing the same way
+        scored: dict[tuple[Any, ...], tuple[float, _bg.Camera]] = {}
         for _, yaw, t, cam in ranked:
+            key = (yaw, tuple(int(v) for v in t), round(cam.elevation, 4), round(cam.azimuth, 4))
+            if key not in scored:
+                whole = base.copy()
+                whole.add(comp, yaw, key[1], 1)
+                scored[key] = _framed_silhouette(whole, cam, pic)
+        ranked = sorted(((*scored[k], k) for k in scored), key=lambda s: (-s[0], s[2][0], s[2][1:]))
+        short: list[tuple[int, tuple[int, int, int], _bg.Camera]] = []
+        for _, cam, (yaw, t, _el, _az) in ranked:
             if len(short) == size:
                 break
             t = (int(t[0]), int(t[1]), int(t[2]))
@@ -1013,6 +1026,50 @@ class BuildCameras:
             for cam in starts
             for start in self._sweep(base, pic, cam)[:1]
         ]
+
+
+def _framed_silhouette(
+    shape: _bg.Assembly, cam: _bg.Camera, pic: _Picture
+) -> tuple[float, _bg.Camera]:
+    """The IoU of ``shape``'s silhouette, seen from ``cam``'s orientation and framed to the
+    drawing's box (scale: the geometric mean of the two sides' ratios; centres aligned), with
+    the reduced foreground; and that camera."""
+    n = WORK_PX
+    ref = _with(cam, scale=1.0, translation=(0.0, 0.0)).fitted(
+        np.asarray(bounds_corners(shape), dtype=np.float64), 0.9
+    )
+    sil = _bg.render(shape, ref, n, n).ids >= 0
+    fg = pic.small > 0.5
+    if not sil.any() or not fg.any():
+        return 0.0, cam
+
+    def box(m: np.ndarray) -> tuple[float, float, float, float]:  # NDC x0, x1, y0, y1
+        rows, cols = np.nonzero(m)
+        h, w = m.shape
+        return (
+            2.0 * cols.min() / w - 1.0,
+            2.0 * (cols.max() + 1) / w - 1.0,
+            1.0 - 2.0 * (rows.max() + 1) / h,
+            1.0 - 2.0 * rows.min() / h,
+        )
+
+    sx0, sx1, sy0, sy1 = box(sil)
+    fx0, fx1, fy0, fy1 = box(fg)
+    s = math.sqrt((fx1 - fx0) / (sx1 - sx0) * (fy1 - fy0) / (sy1 - sy0))
+    # the reference's NDC p shows at s * p + offset on the picture
+    ox = (fx0 + fx1) / 2.0 - s * (sx0 + sx1) / 2.0
+    oy = (fy0 + fy1) / 2.0 - s * (sy0 + sy1) / 2.0
+    h, w = fg.shape
+    ndc_x = (np.arange(w) + 0.5) / w * 2 - 1
+    ndc_y = 1 - (np.arange(h) + 0.5) / h * 2
+    cols = np.floor(((ndc_x - ox) / s + 1) / 2 * n).astype(np.int64)
+    rows = np.floor((1 - (ndc_y - oy) / s) / 2 * n).astype(np.int64)
+    ok = np.outer((rows >= 0) & (rows < n), (cols >= 0) & (cols < n))
+    framed = sil[np.ix_(np.clip(rows, 0, n - 1), np.clip(cols, 0, n - 1))] & ok
+    inter = float((framed & fg).sum())
+    iou = inter / max(float((framed | fg).sum()), 1.0)
+    tx, ty = ref.translation
+    return iou, _with(ref, scale=ref.scale * s, translation=(s * tx + ox, s * ty + oy))
 
 
 def _centred(ref: _bg.Camera, scale: float) -> tuple[float, float]:
