@@ -895,29 +895,37 @@ class BuildCameras:
         own: tuple[float, float, float] | None,
         motions: list[Motion],
         size: int,
+        rendered: bool = True,
     ) -> list[tuple[int, tuple[int, int, int], _bg.Camera]]:
         """The ``size`` best distinct (placement, view) of one component on the base by framed
-        box silhouettes, in that order; the anchor's view (``own``) gets a shortlist of its own
+        silhouettes of the whole (``rendered``: boxes pre-select, the rendered wholes rank;
+        else boxes only: a whole that still lacks a part the picture shows), in that order; the anchor's view (``own``) gets a shortlist of its own
         (manuals mostly only zoom and pan). Distinct: a symmetric part's turns are the same
         placement, and one view of a base with symmetries ``motions`` shows what the turned
         view shows with the placement turned."""
-        ranked = _bg.search_placements(
-            base, comp, pic.fg, sorted(orients), WORK_PX, JOINT_BOXES * JOINT_RANKED
-        )
+        boxes = (JOINT_BOXES if rendered else 4) * JOINT_RANKED
+        ranked = _bg.search_placements(base, comp, pic.fg, sorted(orients), WORK_PX, boxes)
         if own is not None:
             ranked += _bg.search_placements(base, comp, pic.fg, [own], WORK_PX, 2 * JOINT_RANKED)
-        # boxes only pre-select (a slope's box is its whole bounding box): ranked again by the
-        # whole's rendered silhouette, framed to the drawing the same way
-        scored: dict[tuple[Any, ...], tuple[float, _bg.Camera]] = {}
-        for _, yaw, t, cam in ranked:
-            key = (yaw, tuple(int(v) for v in t), round(cam.elevation, 4), round(cam.azimuth, 4))
-            if key not in scored:
-                whole = base.copy()
-                whole.add(comp, yaw, key[1], 1)
-                scored[key] = _framed_silhouette(whole, cam, pic)
-        ranked = sorted(((*scored[k], k) for k in scored), key=lambda s: (-s[0], s[2][0], s[2][1:]))
+        if rendered:
+            # boxes only pre-select (a slope's box is its whole bounding box): ranked again by
+            # the whole's rendered silhouette, framed to the drawing the same way
+            scored: dict[tuple[Any, ...], tuple[float, _bg.Camera]] = {}
+            for _, yaw, t, cam in ranked:
+                key = (
+                    yaw,
+                    tuple(int(v) for v in t),
+                    round(cam.elevation, 4),
+                    round(cam.azimuth, 4),
+                )
+                if key not in scored:
+                    whole = base.copy()
+                    whole.add(comp, yaw, key[1], 1)
+                    scored[key] = _framed_silhouette(whole, cam, pic)
+            order = sorted(scored, key=lambda k: (-scored[k][0], k))
+            ranked = [(scored[k][0], k[0], k[1], scored[k][1]) for k in order]
         short: list[tuple[int, tuple[int, int, int], _bg.Camera]] = []
-        for _, cam, (yaw, t, _el, _az) in ranked:
+        for _, yaw, t, cam in ranked:
             if len(short) == size:
                 break
             t = (int(t[0]), int(t[1]), int(t[2]))
@@ -951,7 +959,7 @@ class BuildCameras:
         for a, b in orders:
             comp_a, comp_b = components[a.component], components[b.component]
             for yaw, t, cam in self._joint_short(
-                base, comp_a, pic, orients, own, motions, size // len(orders)
+                base, comp_a, pic, orients, own, motions, size // len(orders), rendered=False
             ):
                 with_a = base.copy()
                 with_a.add(comp_a, yaw, t, a.colour)
@@ -981,8 +989,12 @@ class BuildCameras:
                     whole = with_a.copy()
                     whole.add(comp_b, yb, tb, b.colour)
                     found[key] = (float(score), whole, cb)
-        best = sorted(found.values(), key=lambda f: -f[0])[:size]
-        return [(whole, cam) for _, whole, cam in best]
+        # the wholes are complete: ranked by their rendered silhouettes
+        rendered = [
+            _framed_silhouette(whole, cam, pic) + (whole,) for _, whole, cam in found.values()
+        ]
+        best = sorted(range(len(rendered)), key=lambda i: -rendered[i][0])[:size]
+        return [(rendered[i][2], rendered[i][1]) for i in best]
 
     def _edge_check(
         self,
