@@ -505,3 +505,35 @@ def test_a_white_brick_on_a_white_page_is_foreground_and_ranked_by_its_silhouett
     short = est._joint_short(base, comps[brick], pic, {view}, None, [], 36)
     top = [(yaw, t) for yaw, t, _ in short[:3]]
     assert any(comps[brick].same_placement(y, t, 0, (0, 6, 0)) for y, t in top), top
+
+
+def test_the_joint_search_turns_the_view_over_a_round_base(tmp_path: Path):
+    """A white 1x2x5 brick on a round 2x2 tile: the tile's azimuth is free, so the first step's
+    camera (the convention's) is 26 degrees off the page's, and the picture's edges (a white
+    part on a white page) give no view either. The joint search also looks from the anchor's
+    elevation turned both ways and finds the view within a degree (it searched the anchor's
+    and the edges' views only: no camera, the placement a stud off)."""
+    from mepnet.cameras import rotation_error
+    from mepnet.manual.page import ComponentRef, Step, StepComponent
+
+    tile, brick = ComponentRef("4150", None), ComponentRef("22886", None)
+    comps = {r: _bg.Component.primitive(r.part) for r in (tile, brick)}
+    base = _bg.Assembly()
+    base.add(comps[tile], 2, (1, 1, 1), 0)
+    whole = base.copy()
+    whole.add(comps[brick], 1, (-2, 9, 1), 15)
+    cam = _bg.Camera(27.13, 324.33, 0.0, 0.0170, (-0.218, -0.511))
+    path = tmp_path / "step_2.png"
+    Image.fromarray(_bg.render(whole, cam, 256, 256).rgb).save(path)
+    step = Step(2, path, None, [StepComponent(brick, 1, 15)], (256, 256))
+    est = BuildCameras((256, 256))
+    anchor = _bg.Camera(27.10, -10.41, 0.0, 0.0225, (0.5, -0.1))
+    fits = est._joint(step, base, comps, est.picture(step), anchor)
+    assert fits
+    got = fits[0][0].camera
+    turned = [
+        _bg.Camera(cam.elevation, cam.azimuth + 90.0 * k, 0.0, cam.scale, cam.translation)
+        for k in range(4)
+    ]
+    assert min(rotation_error(got, c) for c in turned) < 1.0, got
+    assert abs(got.scale / cam.scale - 1.0) < 0.02, got

@@ -114,6 +114,8 @@ JOINT_RANKED = 24
 #: Placements the boxes pre-select for the joint search's rendered silhouettes, in units of
 #: :data:`JOINT_RANKED`.
 JOINT_BOXES = 8
+#: Azimuths (degrees from the anchor's) the joint search also looks from over a small base.
+JOINT_AZIMUTH_OFFSETS = (-40.0, -30.0, -20.0, -10.0, 10.0, 20.0, 30.0, 40.0)
 #: The joint search covers steps adding at most this many component instances; with two, the
 #: second component's best placements kept for each of the first's.
 JOINT_PARTS, JOINT_PAIR_SECOND = 2, 2
@@ -849,6 +851,12 @@ class BuildCameras:
         if anchor is not None:
             own = (float(anchor.elevation), float(anchor.azimuth), float(anchor.roll))
             orients.add(own)
+            if len(base) <= SMALL_BASE and len(insts) == 1:
+                # a small base may not fix the azimuth (a round part: the first step's is the
+                # convention's); its elevation holds: the anchor's turned both ways (one
+                # component: its wholes are ranked by rendered silhouettes; a pair's first
+                # part is ranked by boxes, which more views crowd out)
+                orients |= {(own[0], own[1] + d, own[2]) for d in JOINT_AZIMUTH_OFFSETS}
         # a base the same after a turn shows the same whole turned from the view turned back
         # (C(az) R_k = C(az - 90k)): counted once, a 2x2 brick's four views do not fill the
         # shortlist
