@@ -907,8 +907,9 @@ class BuildCameras:
     ) -> list[tuple[int, tuple[int, int, int], _bg.Camera]]:
         """The ``size`` best distinct (placement, view) of one component on the base by framed
         silhouettes of the whole (``rendered``: boxes pre-select, the rendered wholes rank;
-        else boxes only: a whole that still lacks a part the picture shows), in that order; the anchor's view (``own``) gets a shortlist of its own
-        (manuals mostly only zoom and pan). Distinct: a symmetric part's turns are the same
+        else boxes only: a whole that still lacks a part the picture shows), in that order; the
+        anchor's view (``own``) gets a shortlist of its own (manuals mostly only zoom and
+        pan). Distinct: a symmetric part's turns are the same
         placement, and one view of a base with symmetries ``motions`` shows what the turned
         view shows with the placement turned."""
         boxes = (JOINT_BOXES if rendered else 4) * JOINT_RANKED
