@@ -45,6 +45,20 @@ def runs(manuals: Path) -> list[tuple[object, object, object]]:
     return out
 
 
+def _turned_error(got: _bg.Camera, cam: _bg.Camera) -> float:
+    """Rotation error (degrees) of ``got`` against ``cam`` up to quarter turns of the azimuth
+    (a base the same after a quarter turn looks the same from each)."""
+    from mepnet.cameras import rotation_error
+
+    return min(
+        rotation_error(
+            got,
+            _bg.Camera(cam.elevation, cam.azimuth + 90.0 * k, 0.0, cam.scale, cam.translation),
+        )
+        for k in range(4)
+    )
+
+
 def errors(runs: list[tuple[object, object, object]], first: bool) -> list[tuple[float, float]]:
     out = []
     for man, _, run in runs:
@@ -332,7 +346,6 @@ def test_a_symmetric_base_does_not_fill_the_joint_shortlist_with_turned_copies(t
     placement seen from each view is the same whole turned. Counted once, the true placement
     makes the shortlist and is fitted: the view (up to the brick's quarter turns) within a
     degree and the zoom within 2% (the four copies crowded it out: 2 degrees, 11% small)."""
-    from mepnet.cameras import rotation_error
     from mepnet.manual.page import ComponentRef, Step, StepComponent
 
     brick, corner = ComponentRef("3003", None), ComponentRef("2420", None)
@@ -349,11 +362,7 @@ def test_a_symmetric_base_does_not_fill_the_joint_shortlist_with_turned_copies(t
     fits = est._joint(step, base, comps, est.picture(step), None)
     assert fits
     got = fits[0][0].camera
-    turned = [
-        _bg.Camera(cam.elevation, cam.azimuth + 90.0 * k, 0.0, cam.scale, cam.translation)
-        for k in range(4)
-    ]
-    assert min(rotation_error(got, c) for c in turned) < 1.0, got
+    assert _turned_error(got, cam) < 1.0, got
     assert abs(got.scale / cam.scale - 1.0) < 0.02, got
 
 
@@ -513,7 +522,6 @@ def test_the_joint_search_turns_the_view_over_a_round_base(tmp_path: Path):
     part on a white page) give no view either. The joint search also looks from the anchor's
     elevation turned both ways and finds the view within a degree (it searched the anchor's
     and the edges' views only: no camera, the placement a stud off)."""
-    from mepnet.cameras import rotation_error
     from mepnet.manual.page import ComponentRef, Step, StepComponent
 
     tile, brick = ComponentRef("4150", None), ComponentRef("22886", None)
@@ -531,9 +539,5 @@ def test_the_joint_search_turns_the_view_over_a_round_base(tmp_path: Path):
     fits = est._joint(step, base, comps, est.picture(step), anchor)
     assert fits
     got = fits[0][0].camera
-    turned = [
-        _bg.Camera(cam.elevation, cam.azimuth + 90.0 * k, 0.0, cam.scale, cam.translation)
-        for k in range(4)
-    ]
-    assert min(rotation_error(got, c) for c in turned) < 1.0, got
+    assert _turned_error(got, cam) < 1.0, got
     assert abs(got.scale / cam.scale - 1.0) < 0.02, got

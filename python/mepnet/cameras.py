@@ -220,10 +220,18 @@ class _Picture:
     small_rgb: np.ndarray  # (h, w, 3) float32 in [0, 1]: the picture reduced alike
     fit: _bg.FitPicture  # the picture as the fit samples it (blurred copies kept)
     _edges: tuple[float, float] | None = None
+    _box: tuple[np.ndarray, tuple[float, float, float, float] | None] | None = None
 
     @property
     def blank(self) -> bool:
         return float(self.fg.mean()) < MIN_DRAWING
+
+    def drawing_box(self) -> tuple[np.ndarray, tuple[float, float, float, float] | None]:
+        """The reduced drawing (bool) and its box in NDC (:func:`_ndc_box`; None if empty)."""
+        if self._box is None:
+            fg = self.small > 0.5
+            self._box = (fg, _ndc_box(fg) if fg.any() else None)
+        return self._box
 
     def edge_view(self) -> tuple[float, float]:
         """The orientation its edges suggest: (elevation, azimuth in [180, 270))."""
@@ -999,11 +1007,9 @@ class BuildCameras:
                     whole.add(comp_b, yb, tb, b.colour)
                     found[key] = (float(score), whole, cb)
         # the wholes are complete: ranked by their rendered silhouettes
-        rendered = [
-            _framed_silhouette(whole, cam, pic) + (whole,) for _, whole, cam in found.values()
-        ]
-        best = sorted(range(len(rendered)), key=lambda i: -rendered[i][0])[:size]
-        return [(rendered[i][2], rendered[i][1]) for i in best]
+        ranked = [(*_framed_silhouette(whole, cam, pic), whole) for _, whole, cam in found.values()]
+        ranked.sort(key=lambda r: -r[0])
+        return [(whole, cam) for _, cam, whole in ranked[:size]]
 
     def _edge_check(
         self,
@@ -1060,22 +1066,11 @@ def _framed_silhouette(
         np.asarray(bounds_corners(shape), dtype=np.float64), 0.9
     )
     sil = _bg.render(shape, ref, n, n).ids >= 0
-    fg = pic.small > 0.5
-    if not sil.any() or not fg.any():
+    fg, fg_box = pic.drawing_box()
+    if not sil.any() or fg_box is None:
         return 0.0, cam
-
-    def box(m: np.ndarray) -> tuple[float, float, float, float]:  # NDC x0, x1, y0, y1
-        rows, cols = np.nonzero(m)
-        h, w = m.shape
-        return (
-            2.0 * cols.min() / w - 1.0,
-            2.0 * (cols.max() + 1) / w - 1.0,
-            1.0 - 2.0 * (rows.max() + 1) / h,
-            1.0 - 2.0 * rows.min() / h,
-        )
-
-    sx0, sx1, sy0, sy1 = box(sil)
-    fx0, fx1, fy0, fy1 = box(fg)
+    sx0, sx1, sy0, sy1 = _ndc_box(sil)
+    fx0, fx1, fy0, fy1 = fg_box
     s = math.sqrt((fx1 - fx0) / (sx1 - sx0) * (fy1 - fy0) / (sy1 - sy0))
     # the reference's NDC p shows at s * p + offset on the picture
     ox = (fx0 + fx1) / 2.0 - s * (sx0 + sx1) / 2.0
@@ -1091,6 +1086,18 @@ def _framed_silhouette(
     iou = inter / max(float((framed | fg).sum()), 1.0)
     tx, ty = ref.translation
     return iou, _with(ref, scale=ref.scale * s, translation=(s * tx + ox, s * ty + oy))
+
+
+def _ndc_box(mask: np.ndarray) -> tuple[float, float, float, float]:
+    """The box of a non-empty mask's pixels in NDC: x0, x1, y0, y1 (x right, y up)."""
+    rows, cols = np.nonzero(mask)
+    h, w = mask.shape
+    return (
+        2.0 * cols.min() / w - 1.0,
+        2.0 * (cols.max() + 1) / w - 1.0,
+        1.0 - 2.0 * (rows.max() + 1) / h,
+        1.0 - 2.0 * rows.min() / h,
+    )
 
 
 def _centred(ref: _bg.Camera, scale: float) -> tuple[float, float]:
