@@ -500,20 +500,28 @@ class BuildCameras:
     ) -> _bg.CameraFit | None:
         """The best fit of ``shape`` to a picture that shows exactly it, over the view sphere:
         the orientations the edges of ``views`` (default: the picture) suggest, each quarter
-        turn, and a coarse grid, ranked by coarse silhouettes; the best ``n // 2`` of the former
-        and the best of the latter are fitted (``n`` in all). Among fits that agree equally well,
-        the one nearest a front three-quarter view wins."""
+        turn, and a coarse grid, ranked by the shape's rendered silhouette framed to the
+        drawing (a coarse box silhouette makes a round part a box); the best ``n - 1`` and the
+        best of the edges' are fitted. Among fits that agree equally well, the one nearest a
+        front three-quarter view wins."""
         edge = [
             (el, az + 90.0 * k, 0.0)
             for el, az in {v.edge_view() for v in (views or [pic])}
             for k in range(4)
         ]
         grid = [(e, a, 0.0) for e in SEARCH_ELEVATIONS for a in SEARCH_AZIMUTHS]
-        ranked = _distinct(_bg.search_orientations(shape, pic.fg, edge, WORK_PX), n // 2)
-        for score, cam in _bg.search_orientations(shape, pic.fg, grid, WORK_PX):
-            ranked.append((score - 1.0, cam))  # after the edges' candidates
-        ranked = _distinct(ranked, n)
-        fits = [self._fit(shape, pic, cam, LEVELS_ROUGH) for _, cam in ranked]
+        unit = _bg.Camera(FIRST_ELEVATION, FIRST_AZIMUTH, 0.0, 1.0, (0.0, 0.0))
+
+        def ranked(cands: list[tuple[float, float, float]]) -> list[tuple[float, _bg.Camera]]:
+            return [
+                _framed_silhouette(shape, _with(unit, elevation=e, azimuth=a, roll=r), pic)
+                for e, a, r in cands
+            ]
+
+        by_edges = _distinct(ranked(edge), 1)
+        starts = _distinct(ranked(grid) + by_edges, n - 1)
+        starts += [s for s in by_edges if all(s[1] is not c for _, c in starts)]
+        fits = [self._fit(shape, pic, cam, LEVELS_ROUGH) for _, cam in starts]
         if not fits:
             return None
         return _prefer_front([(f, "") for f in fits], lambda f: f.agree)[0][0]
