@@ -221,6 +221,7 @@ class _Picture:
     fit: _bg.FitPicture  # the picture as the fit samples it (blurred copies kept)
     _edges: tuple[float, float] | None = None
     _box: tuple[np.ndarray, tuple[float, float, float, float] | None] | None = None
+    _spectra: tuple[np.ndarray, np.ndarray] | None = None
 
     @property
     def blank(self) -> bool:
@@ -232,6 +233,23 @@ class _Picture:
             fg = self.small > 0.5
             self._box = (fg, _ndc_box(fg) if fg.any() else None)
         return self._box
+
+    def sweep_spectra(self) -> tuple[np.ndarray, np.ndarray]:
+        """The scale sweep's view of the reduced picture (:meth:`BuildCameras._match`), as
+        spectra at twice its size: the weight per pixel of the reference (+1 on the drawing,
+        -2 off it, less :data:`SWEEP_COLOUR` times its squared colour), and the three colour
+        channels (3, ...)."""
+        if self._spectra is None:
+            h, w = self.small.shape
+            colours = self.small_rgb
+            weight = self.small - 2.0 * (1.0 - self.small)
+            weight = weight - SWEEP_COLOUR * (colours**2).sum(axis=2)
+            pad = (2 * h, 2 * w)
+            self._spectra = (
+                np.fft.rfft2(weight, pad),
+                np.stack([np.fft.rfft2(colours[..., c], pad) for c in range(3)]),
+            )
+        return self._spectra
 
     def edge_view(self) -> tuple[float, float]:
         """The orientation its edges suggest: (elevation, azimuth in [180, 270))."""
@@ -613,33 +631,38 @@ class BuildCameras:
         squared colour difference (so the reference is as large as the drawing allows, where
         its colours are). The best ``starts`` distinct placements: the best within
         :data:`SWEEP_PRIOR` first, then the best overall."""
-        target = pic.small
-        h, w = target.shape
+        h, w = pic.small.shape
         pad = (2 * h, 2 * w)
-        colours = pic.small_rgb
-        # per pixel of the reference at offset tau: W(x+tau) - sum_c (P_c(x+tau) - T_c(x))^2
-        weight = target - 2.0 * (1.0 - target) - SWEEP_COLOUR * (colours**2).sum(axis=2)
-        f_weight = np.fft.rfft2(weight, pad)
-        f_colour = [np.fft.rfft2(colours[..., c], pad) for c in range(3)]
+        f_weight, f_colour = pic.sweep_spectra()
 
-        def place(scale: float) -> list[tuple[float, _bg.Camera]]:
-            c = _with(ref, scale=scale, translation=(0.0, 0.0))
-            sil, tpl = self._resampled(sil_ref, rgb_ref, ref, c, (h, w))
-            if not sil.any():
+        def place(scales: list[float]) -> list[tuple[float, _bg.Camera]]:
+            # per pixel of the reference at offset tau: W(x+tau) - sum_c (P_c(x+tau) - T_c(x))^2;
+            cams = [_with(ref, scale=sc, translation=(0.0, 0.0)) for sc in scales]
+            refs = [self._resampled(sil_ref, rgb_ref, ref, c, (h, w)) for c in cams]
+            kept = [(c, sil, tpl) for c, (sil, tpl) in zip(cams, refs, strict=True) if sil.any()]
+            if not kept:
                 return []
-            spec = f_weight * np.conj(np.fft.rfft2(sil, pad))
-            for ch in range(3):
-                spec += 2.0 * SWEEP_COLOUR * f_colour[ch] * np.conj(np.fft.rfft2(tpl[..., ch], pad))
-            corr = np.fft.irfft2(spec, pad) - SWEEP_COLOUR * float((tpl**2).sum())
+            corrs = []
+            for _, sil, tpl in kept:
+                spec = f_weight * np.conj(np.fft.rfft2(sil, pad))
+                for ch in range(3):
+                    spec += (
+                        2.0 * SWEEP_COLOUR * f_colour[ch] * np.conj(np.fft.rfft2(tpl[..., ch], pad))
+                    )
+                corrs.append(np.fft.irfft2(spec, pad))
             out = []
-            for _ in range(2):  # the two best offsets, apart
-                dy, dx = np.unravel_index(int(np.argmax(corr)), corr.shape)
-                score = float(corr[dy, dx])
-                corr[max(dy - 3, 0) : dy + 4, max(dx - 3, 0) : dx + 4] = -np.inf
-                dy = dy - pad[0] if dy >= h else dy
-                dx = dx - pad[1] if dx >= w else dx
-                cx, cy = _centred(ref, c.scale)
-                out.append((score, _with(c, translation=(cx + 2.0 * dx / w, cy - 2.0 * dy / h))))
+            for (c, _, tpl), corr in zip(kept, corrs, strict=True):
+                corr -= SWEEP_COLOUR * float((tpl**2).sum())
+                for _ in range(2):  # the two best offsets, apart
+                    dy, dx = np.unravel_index(int(np.argmax(corr)), corr.shape)
+                    score = float(corr[dy, dx])
+                    corr[max(dy - 3, 0) : dy + 4, max(dx - 3, 0) : dx + 4] = -np.inf
+                    dy = dy - pad[0] if dy >= h else dy
+                    dx = dx - pad[1] if dx >= w else dx
+                    cx, cy = _centred(ref, c.scale)
+                    out.append(
+                        (score, _with(c, translation=(cx + 2.0 * dx / w, cy - 2.0 * dy / h)))
+                    )
             return out
 
         cam = ref
@@ -648,7 +671,7 @@ class BuildCameras:
             return SWEEP_PRIOR[0] <= r <= SWEEP_PRIOR[1]
 
         ratios = SWEEP_RATIOS if wide else [r for r in SWEEP_RATIOS if near_ratio(r)]
-        coarse = [x for r in ratios for x in place(cam.scale * r)]
+        coarse = place([cam.scale * r for r in ratios])
         if not coarse:
             return []
         step = SWEEP_RATIOS[1] / SWEEP_RATIOS[0]
@@ -659,12 +682,9 @@ class BuildCameras:
         # refined around the best overall and the best within the usual zoom (a base mostly
         # hidden by new parts of other colours scores best shrunk into one of its own faces)
         fine = list(coarse)
-        for pool in (coarse, [x for x in coarse if near(x[1])]):
-            if pool:
-                best = max(pool, key=lambda s: s[0])[1]
-                fine += [
-                    x for k in (-2 / 3, -1 / 3, 1 / 3, 2 / 3) for x in place(best.scale * step**k)
-                ]
+        pools = (coarse, [x for x in coarse if near(x[1])])
+        bests = dict.fromkeys(max(p, key=lambda s: s[0])[1].scale for p in pools if p)
+        fine += place([b * step**k for b in bests for k in (-2 / 3, -1 / 3, 1 / 3, 2 / 3)])
         fine.sort(key=lambda s: -s[0])
         out: list[tuple[float, _bg.Camera]] = []
         for group in ([x for x in fine if near(x[1])][:1], fine):
