@@ -1069,17 +1069,17 @@ class BuildCameras:
 
     def _search_inside(self, base: _bg.Assembly, pic: _Picture) -> list[_bg.CameraFit]:
         """Fits of the base to a picture showing it with new parts, over the view sphere:
-        orientations ranked by the coarse full-silhouette score, the best few swept and
-        fitted."""
+        orientations ranked by the coarse full-silhouette score, the best few swept (the
+        best-scored start: no previous scale to prefer) and fitted."""
         el, az = pic.edge_view()
         views = [_bg.Camera(el, az + 90.0 * k, 0.0, 1.0, (0.0, 0.0)) for k in range(4)]
         cands = [(e, a, 0.0) for e in SEARCH_ELEVATIONS for a in SEARCH_AZIMUTHS]
         ranked = _distinct(_bg.search_orientations(base, pic.fg, cands, WORK_PX), 2)
         starts = views + [cam for _, cam in ranked]
         return [
-            self._fit_inside(base, pic, start)
+            self._fit_inside(base, pic, max(found, key=lambda f: f[0])[1])
             for cam in starts
-            for start in self._sweep(base, pic, cam)[:1]
+            if (found := self._sweep_scored(base, pic, cam))
         ]
 
 
