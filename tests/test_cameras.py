@@ -17,7 +17,7 @@ from mepnet import _brickgeom as _bg
 from mepnet.cameras import BuildCameras, drop_cameras, moved_camera
 from mepnet.eval import _camera_errors
 from mepnet.frames import Motion, candidate_motions, matches, moved, symmetries
-from mepnet.geom import rotate_ldu
+from mepnet.geom import bounds_corners, rotate_ldu
 from mepnet.manual import load_manual
 from mepnet.plan import accuracy, run_manual
 from mepnet.stage2 import make_predictor
@@ -589,3 +589,39 @@ def test_a_first_step_of_three_parts_finds_the_view_of_its_largest(tmp_path: Pat
     assert got is not None
     assert _turned_error(got, cam) < 1.5, got
     assert abs(got.scale / cam.scale - 1.0) < 0.03, got
+
+
+def test_the_scale_sweep_keeps_a_hidden_dark_base_on_the_picture(tmp_path: Path):
+    """A dark red 1x1 plate all but hidden by the grey brick put on it, beside a tan plate: its
+    colours match the picture almost nowhere, so every placement on the picture scores below
+    zero. Beyond the picture counted as a black page that costs nothing, the sweep put the base
+    there (360 pixels off); beyond the picture is page now, and every start lies on it."""
+    from mepnet.manual.page import ComponentRef, Step, StepComponent
+
+    refs = [ComponentRef(p, None) for p in ("3024", "3021", "3005")]
+    comps = {r: _bg.Component.primitive(r.part) for r in refs}
+    base = _bg.Assembly()
+    base.add(comps[refs[0]], 2, (-8, 1, -1), 320)
+    whole = base.copy()
+    whole.add(comps[refs[1]], 0, (-5, 1, 2), 19)
+    whole.add(comps[refs[2]], 0, (-8, 4, -1), 71)
+    prev = _bg.Camera(17.15, 48.05, 0.0, 0.05505, (2.5277, -1.1485))
+    cam = _bg.Camera(17.15, 48.05, 0.0, 0.01540, (0.8776, -0.4639))
+    path = tmp_path / "step_2.png"
+    Image.fromarray(_bg.render(whole, cam, 256, 256).rgb).save(path)
+    step = Step(
+        2,
+        path,
+        None,
+        [StepComponent(r, 1, c) for r, c in zip(refs[1:], (19, 71), strict=True)],
+        (256, 256),
+    )
+    est = BuildCameras((256, 256))
+    starts = est._sweep(base, est.picture(step), prev, wide=False)
+    assert starts
+    centre = np.asarray(bounds_corners(base), dtype=float).mean(axis=0)
+    px, _ = cam.project(centre[None], 256, 256)
+    assert 0 <= px[0, 0] < 256 and 0 <= px[0, 1] < 256  # where the picture shows it
+    for start in starts:
+        px, _ = start.project(centre[None], 256, 256)
+        assert 0 <= px[0, 0] < 256 and 0 <= px[0, 1] < 256, start

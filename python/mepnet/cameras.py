@@ -238,16 +238,22 @@ class _Picture:
         """The scale sweep's view of the reduced picture (:meth:`BuildCameras._match`), as
         spectra at twice its size: the weight per pixel of the reference (+1 on the drawing,
         -2 off it, less :data:`SWEEP_COLOUR` times its squared colour), and the three colour
-        channels (3, ...)."""
+        channels (3, ...). Beyond the picture is page (its median colour off the drawing): a
+        reference placed partly or wholly outside scores there as off the drawing, not as on a
+        black page that costs nothing (which drew dark parts out of the picture)."""
         if self._spectra is None:
             h, w = self.small.shape
-            colours = self.small_rgb
-            weight = self.small - 2.0 * (1.0 - self.small)
-            weight = weight - SWEEP_COLOUR * (colours**2).sum(axis=2)
-            pad = (2 * h, 2 * w)
+            off = self.small < 0.5
+            page = np.median(self.small_rgb[off], axis=0) if off.any() else np.ones(3)
+            colours = np.empty((2 * h, 2 * w, 3), dtype=np.float32)
+            colours[...] = page
+            colours[:h, :w] = self.small_rgb
+            drawing = np.zeros((2 * h, 2 * w), dtype=np.float32)
+            drawing[:h, :w] = self.small
+            weight = drawing - 2.0 * (1.0 - drawing) - SWEEP_COLOUR * (colours**2).sum(axis=2)
             self._spectra = (
-                np.fft.rfft2(weight, pad),
-                np.stack([np.fft.rfft2(colours[..., c], pad) for c in range(3)]),
+                np.fft.rfft2(weight),
+                np.stack([np.fft.rfft2(colours[..., c]) for c in range(3)]),
             )
         return self._spectra
 
