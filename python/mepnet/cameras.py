@@ -534,11 +534,10 @@ class BuildCameras:
             for k in range(4)
         ]
         grid = [(e, a, 0.0) for e in SEARCH_ELEVATIONS for a in SEARCH_AZIMUTHS]
-        unit = _bg.Camera(FIRST_ELEVATION, FIRST_AZIMUTH, 0.0, 1.0, (0.0, 0.0))
 
         def ranked(cands: list[tuple[float, float, float]]) -> list[tuple[float, _bg.Camera]]:
             return [
-                _framed_silhouette(shape, _with(unit, elevation=e, azimuth=a, roll=r), pic)
+                _framed_silhouette(shape, _bg.Camera(e, a, r, 1.0, (0.0, 0.0)), pic)
                 for e, a, r in cands
             ]
 
@@ -642,23 +641,19 @@ class BuildCameras:
         f_weight, f_colour = pic.sweep_spectra()
 
         def place(scales: list[float]) -> list[tuple[float, _bg.Camera]]:
-            # per pixel of the reference at offset tau: W(x+tau) - sum_c (P_c(x+tau) - T_c(x))^2;
-            cams = [_with(ref, scale=sc, translation=(0.0, 0.0)) for sc in scales]
-            refs = [self._resampled(sil_ref, rgb_ref, ref, c, (h, w)) for c in cams]
-            kept = [(c, sil, tpl) for c, (sil, tpl) in zip(cams, refs, strict=True) if sil.any()]
-            if not kept:
-                return []
-            corrs = []
-            for _, sil, tpl in kept:
+            # per pixel of the reference at offset tau: W(x+tau) - sum_c (P_c(x+tau) - T_c(x))^2
+            out = []
+            for scale in scales:
+                c = _with(ref, scale=scale, translation=(0.0, 0.0))
+                sil, tpl = self._resampled(sil_ref, rgb_ref, ref, c, (h, w))
+                if not sil.any():
+                    continue
                 spec = f_weight * np.conj(np.fft.rfft2(sil, pad))
                 for ch in range(3):
                     spec += (
                         2.0 * SWEEP_COLOUR * f_colour[ch] * np.conj(np.fft.rfft2(tpl[..., ch], pad))
                     )
-                corrs.append(np.fft.irfft2(spec, pad))
-            out = []
-            for (c, _, tpl), corr in zip(kept, corrs, strict=True):
-                corr -= SWEEP_COLOUR * float((tpl**2).sum())
+                corr = np.fft.irfft2(spec, pad) - SWEEP_COLOUR * float((tpl**2).sum())
                 for _ in range(2):  # the two best offsets, apart
                     dy, dx = np.unravel_index(int(np.argmax(corr)), corr.shape)
                     score = float(corr[dy, dx])
