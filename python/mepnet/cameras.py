@@ -654,13 +654,13 @@ class BuildCameras:
                         2.0 * SWEEP_COLOUR * f_colour[ch] * np.conj(np.fft.rfft2(tpl[..., ch], pad))
                     )
                 corr = np.fft.irfft2(spec, pad) - SWEEP_COLOUR * float((tpl**2).sum())
+                cx, cy = _centred(ref, c.scale)
                 for _ in range(2):  # the two best offsets, apart
                     dy, dx = np.unravel_index(int(np.argmax(corr)), corr.shape)
                     score = float(corr[dy, dx])
                     corr[max(dy - 3, 0) : dy + 4, max(dx - 3, 0) : dx + 4] = -np.inf
                     dy = dy - pad[0] if dy >= h else dy
                     dx = dx - pad[1] if dx >= w else dx
-                    cx, cy = _centred(ref, c.scale)
                     out.append(
                         (score, _with(c, translation=(cx + 2.0 * dx / w, cy - 2.0 * dy / h)))
                     )
