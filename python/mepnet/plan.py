@@ -242,8 +242,14 @@ def run_build(
     return run
 
 
-#: A camera check this good ends the search over a step's camera hypotheses.
-EXPLAINED_IOU, EXPLAINED_AGREE = 0.9, 0.8
+#: A camera check this good ends the search over a step's camera hypotheses (a passable one
+#: does not: a tiny base hidden under the new part explains 84% of a picture at the previous
+#: step's zoom, with the part set beside it, where the part and the camera searched together
+#: explain all of it).
+EXPLAINED_IOU, EXPLAINED_AGREE = 0.95, 0.9
+#: A later hypothesis replaces the best so far only when its check scores this much more
+#: (near ties keep the order: the view the previous step was drawn from first).
+BETTER = 0.02
 #: A turned or searched view's check must beat a carried one's by this much.
 UNLIKELY = 0.1
 #: A first step's prior view whose check (fitted to the predicted step) agrees or overlaps less
@@ -317,7 +323,11 @@ def _estimated_camera_step(
             if est.how in ("turned", "searched") or est.how.endswith("(weak)"):
                 score -= UNLIKELY  # a turned, searched or weak view needs clearly better evidence
             # (predicted again with the camera fitted to the step: kept unless clearly worse)
-            if best is None or score > best[0] or (again and score >= best[0] - 0.02):
+            if (
+                best is None
+                or score > best[0] + (0.0 if again else BETTER)
+                or (again and score >= best[0] - 0.02)
+            ):
                 best = (score, preds, est, fit, shape, unverified)
             explained = (
                 fit is not None and fit.iou >= EXPLAINED_IOU and fit.agree >= EXPLAINED_AGREE
