@@ -230,6 +230,10 @@ def test_eval_with_estimated_cameras_reports_camera_errors(manuals: Path, tmp_pa
     off = pm["camera_off"]
     assert all(v is None or (len(v) == 2 and v[1] > 1.0) for v in off.values()), off
     assert m["camera_failures"] == sum(v is None for v in off.values())
+    # steps the picture cannot tell without its camera: wrong steps, counted apart
+    undecidable = set(pm["camera_undecidable"])
+    assert undecidable <= set(pm["wrong"]) - set(pm["undetermined"])
+    assert (m["camera_undecidable_components"] > 0) == bool(undecidable)
     bad = subprocess.run(
         [sys.executable, "-m", "mepnet.eval", "--data", str(one), "--predictor", "oracle"]
         + ["--camera", "guessed"],
@@ -673,3 +677,38 @@ def test_a_hidden_tiny_base_is_not_explained_by_the_previous_zoom(tmp_path: Path
     rendered = _bg.render(shape, got.camera, 256, 256).rgb
     drawn = np.asarray(Image.open(steps[1].image_path).convert("RGB"))
     assert np.mean(np.abs(rendered.astype(int) - drawn.astype(int)).max(axis=2) > 40) < 0.01
+
+
+def test_a_step_whose_picture_cannot_fix_the_camera_is_counted_undecidable():
+    """A 1x1 plate wholly hidden under a 2x2 tile: the tile half a stud further along, drawn
+    with the camera panned by as much, gives the same picture (`undecidable`, reported
+    beside the strict figure); drawn with the manual's camera it does not."""
+    from types import SimpleNamespace as NS
+
+    from mepnet.eval import undecidable
+
+    plate, tile = _bg.Component.primitive("3024"), _bg.Component.primitive("3068b")
+    cam = _bg.Camera(35.896, 313.725, 0.0, 0.029848, (0.29306, -0.06087))
+    truth = [[(plate, 1, (-1, 1, 0), 72)], [(tile, 3, (-1, 2, 0), 0)]]
+    shift = np.array([-1, 0, 0])
+    px, _ = cam.project(np.array([[0.0, 0.0, 0.0], shift * [10.0, 8.0, 10.0]]), 256, 256)
+    dx, dy = px[0] - px[1]
+    panned = _bg.Camera(
+        cam.elevation,
+        cam.azimuth,
+        0.0,
+        cam.scale,
+        (cam.translation[0] + dx * 2 / 256, cam.translation[1] - dy * 2 / 256),
+    )
+    man = NS(
+        image_size=(256, 256), main=NS(steps=[None, NS(camera=cam, camera_object=lambda: cam)])
+    )
+    b = NS(key=None, build=NS(steps=[None, NS(components=[NS(colour=0)])]))
+    run = NS(components={"tile": tile})
+    guess = NS(placed=True, component="tile", yaw=3, t=(-2, 2, 0), entry=0)
+
+    def step(camera: _bg.Camera) -> NS:
+        return NS(index=2, camera=NS(camera=camera, source="estimated"), predictions=[guess])
+
+    assert undecidable(man, run, b, step(panned), truth)
+    assert not undecidable(man, run, b, step(cam), truth)

@@ -31,6 +31,11 @@ Metrics (paper §5.1), written as JSON with the keys of DESIGN §8:
   such steps as right. A plan is *drawn alike* when every step's predicted shape gives the
   truth's picture (``manuals_drawn_alike``: the share of manuals). Both are reported beside the
   strict figures, never in their place.
+- ``camera_undecidable_components`` (with ``--camera estimated``): components of the wrong
+  steps (not undetermined) whose prediction, drawn with the camera the step estimated, gives the
+  step's picture as the truth gives it with the manual's camera (a part wholly hidden under
+  the new one: where the new one sits on it no picture without a camera can tell). Reported
+  beside the strict figure, never in its place.
 - ``mtc``: mistakes to complete, the fraction of steps with a wrong prediction given the
   ground-truth base (averaged over manuals).
 - ``seconds_per_step``: the predictor's wall time per step (detection + stage 2).
@@ -61,6 +66,7 @@ from mepnet.cli import run as run_cli
 from mepnet.errors import ConfigError, ManualFormatError
 from mepnet.files import atomic_write_json, check_output_file
 from mepnet.frames import moved, symmetries
+from mepnet.geom import BrickGeomError
 from mepnet.manual import ComponentRef, answers_of, iter_manual_dirs, load_manual
 from mepnet.plan import (
     accuracy,
@@ -360,6 +366,7 @@ def evaluate(
     cam_seconds: list[float] = []
     cam_failures = cam_steps = 0
     ar_right = ar_total = manuals_exact = manuals_alike = undetermined_comps = 0
+    undecidable_comps = 0
     ar_revisions = 0
     ar_repair_seconds: list[float] = []
     timeouts = 0
@@ -387,6 +394,7 @@ def evaluate(
             first_wrong = 0
             wrong_where: list[str] = []
             undetermined_where: list[str] = []
+            undecidable_where: list[str] = []
             camera_off: dict[str, Any] = {}  # estimated cameras off by > CAMERA_OFF_PX, or none
             for b in run.builds:
                 truth = answers.build(b.key)
@@ -413,6 +421,9 @@ def evaluate(
                         if undetermined(man, run, b, s, truth_steps):
                             undetermined_where.append(f"{b.name} step {s.index}")
                             undetermined_comps += sum(step_kinds.values())
+                        elif camera == "estimated" and undecidable(man, run, b, s, truth_steps):
+                            undecidable_where.append(f"{b.name} step {s.index}")
+                            undecidable_comps += sum(step_kinds.values())
                     if s.camera is not None and s.camera.source == "estimated":
                         cam_steps += 1
                         cam_seconds.append(s.camera.seconds)
@@ -448,7 +459,11 @@ def evaluate(
                     "errors": kinds,
                     "wrong": wrong_where,
                     "undetermined": undetermined_where,
-                    **({"camera_off": camera_off} if camera == "estimated" else {}),
+                    **(
+                        {"camera_off": camera_off, "camera_undecidable": undecidable_where}
+                        if camera == "estimated"
+                        else {}
+                    ),
                 }
             )
             if autoregressive:
@@ -509,6 +524,7 @@ def evaluate(
         "manuals_exact": manuals_exact / len(manuals) if autoregressive else None,
         "undetermined_components": undetermined_comps,
         "component_acc_pictures": (scorer.correct + undetermined_comps) / max(scorer.components, 1),
+        "camera_undecidable_components": undecidable_comps if camera == "estimated" else None,
         "manuals_drawn_alike": manuals_alike / len(manuals) if autoregressive else None,
         "repair": repair if autoregressive else None,
         "revisions": ar_revisions if autoregressive else None,
@@ -691,6 +707,39 @@ def drawn_alike(man: Any, run: Any) -> bool | None:
     return True
 
 
+def undecidable(man: Any, run: Any, b: Any, s: Any, truth: list[list[Any]]) -> bool:
+    """Whether a (wrong, teacher-forced) step's prediction, drawn with the camera the step
+    estimated, gives the step's picture as the truth gives it with the manual's camera (drawn
+    by mepnet's renderer, at most :data:`DRAWN_TOLERANCE_PX` pixels apart): without a camera,
+    the step's own picture cannot tell the two apart. The true shape before the step is in the
+    predictions' frame (teacher-forced, the cameras are carried into it)."""
+    if s.camera is None or s.camera.camera is None or s.camera.source != "estimated":
+        return False
+    if not s.predictions or not all(p.placed for p in s.predictions):
+        return False
+    page = b.build.steps[s.index - 1]
+    true_page = (man.main if b.key is None else man.submodules[b.key]).steps[s.index - 1]
+    if true_page.camera is None:
+        return False
+    k = s.index - 1
+    truth_shape, predicted = _bg.Assembly(), _bg.Assembly()
+    for step in truth[:k]:
+        for x in step:
+            truth_shape.add(*x)
+            predicted.add(*x)
+    for x in truth[k]:
+        truth_shape.add(*x)
+    try:
+        for p in s.predictions:
+            predicted.add(run.components[p.component], p.yaw, p.t, page.components[p.entry].colour)
+    except BrickGeomError:
+        return False
+    w, h = man.image_size
+    drawn = _bg.render(truth_shape, true_page.camera_object(), w, h).rgb.astype(np.int16)
+    mine = _bg.render(predicted, s.camera.camera, w, h).rgb.astype(np.int16)
+    return int((np.abs(drawn - mine).max(axis=-1) > _DRAWN_LEVEL).sum()) <= DRAWN_TOLERANCE_PX
+
+
 def _in_truth_frame(run: Any, b: Any, s: Any) -> list[Prediction]:
     """A step's predictions moved into the truth's frame (:func:`mepnet.plan.step_motion`;
     the identity with the cameras the manual states)."""
@@ -777,7 +826,9 @@ def format_table(rows: list[dict[str, Any]]) -> str:
             )
             lines.append(
                 f"{'':14s} (poses compared up to each build's frame: one quarter turn and "
-                "lattice shift per build, fixed by its first step)"
+                "lattice shift per build, fixed by its first step; "
+                f"{r['camera_undecidable_components']} components wrong where the step's "
+                "picture, without its camera, cannot tell)"
             )
     lines.append(
         f"({rows[0]['n_manuals']} manuals, {rows[0]['n_steps']} steps, {rows[0]['n_components']} components, "
