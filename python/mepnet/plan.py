@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from mepnet import _brickgeom as _bg
-from mepnet.cameras import BuildCameras, CameraEstimate
+from mepnet.cameras import SMALL_BASE, BuildCameras, CameraEstimate
 from mepnet.consistency import Placement, Revision, StepCheck, View, check_step
 from mepnet.consistency import build as build_placements
 from mepnet.consistency import repair as repair_placements
@@ -242,11 +242,14 @@ def run_build(
     return run
 
 
-#: A camera check this good ends the search over a step's camera hypotheses (a passable one
-#: does not: a tiny base hidden under the new part explains 84% of a picture at the previous
-#: step's zoom, with the part set beside it, where the part and the camera searched together
+#: A camera check this good ends the search over a step's camera hypotheses.
+EXPLAINED_IOU, EXPLAINED_AGREE = 0.9, 0.8
+#: Over a base of at most :data:`mepnet.cameras.SMALL_BASE` components only a check this good
+#: ends it: such a base says little, so a passable check is no proof (a 1x1 plate wholly
+#: hidden under the 2x2 tile put on it is explained on 84% of the picture at the previous
+#: step's zoom with the tile beside the plate; the tile and the camera searched together
 #: explain all of it).
-EXPLAINED_IOU, EXPLAINED_AGREE = 0.95, 0.9
+EXPLAINED_SMALL_IOU, EXPLAINED_SMALL_AGREE = 0.95, 0.9
 #: A later hypothesis replaces the best so far only when its check scores this much more
 #: (near ties keep the order: the view the previous step was drawn from first).
 BETTER = 0.02
@@ -329,8 +332,10 @@ def _estimated_camera_step(
                 or (again and score >= best[0] - 0.02)
             ):
                 best = (score, preds, est, fit, shape, unverified)
-            explained = (
-                fit is not None and fit.iou >= EXPLAINED_IOU and fit.agree >= EXPLAINED_AGREE
+            explained = fit is not None and (
+                fit.iou >= EXPLAINED_SMALL_IOU and fit.agree >= EXPLAINED_SMALL_AGREE
+                if len(base) <= SMALL_BASE
+                else fit.iou >= EXPLAINED_IOU and fit.agree >= EXPLAINED_AGREE
             )
             # the camera fitted to the predicted step moved: predicted again with it
             if again or fit is None or fit.moved_px <= REPREDICT_PX:
