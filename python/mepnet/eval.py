@@ -711,9 +711,9 @@ def undecidable(man: Any, run: Any, b: Any, s: Any, truth: list[list[Any]]) -> b
     """Whether a (wrong, teacher-forced) step's prediction, drawn with the camera the step
     estimated, gives the step's picture as the truth gives it with the manual's camera (drawn
     by mepnet's renderer, at most :data:`DRAWN_TOLERANCE_PX` pixels unmatched within a pixel,
-    :func:`_unmatched`): without a camera,
-    the step's own picture cannot tell the two apart. The true shape before the step is in the
-    predictions' frame (teacher-forced, the cameras are carried into it)."""
+    :func:`_unmatched`): without a camera, the step's own picture cannot tell the two apart.
+    The true shape before the step is in the predictions' frame (teacher-forced, the cameras
+    are carried into it)."""
     if s.camera is None or s.camera.camera is None or s.camera.source != "estimated":
         return False
     if not s.predictions or not all(p.placed for p in s.predictions):
