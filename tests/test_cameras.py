@@ -71,6 +71,17 @@ def errors(runs: list[tuple[object, object, object]], first: bool) -> list[tuple
     return out
 
 
+def _drawn_step(
+    tmp_path: Path, k: int, shape: _bg.Assembly, cam: _bg.Camera, entries: list[object]
+) -> object:
+    """Step ``k`` of a 256-pixel page showing ``shape`` drawn from ``cam``, adding ``entries``."""
+    from mepnet.manual.page import Step
+
+    path = tmp_path / f"step_{k}.png"
+    Image.fromarray(_bg.render(shape, cam, 256, 256).rgb).save(path)
+    return Step(k, path, None, entries, (256, 256))
+
+
 def test_later_steps_recover_the_true_camera(runs: list[tuple[object, object, object]]):
     errs = np.array(errors(runs, first=False))
     assert len(errs) >= 10
@@ -318,7 +329,7 @@ def test_a_base_hidden_by_the_new_part_keeps_the_previous_view(tmp_path: Path):
     explains the picture nearly as well. Camera and placement searched together find the view
     the previous step was drawn from (manuals mostly only zoom and pan), within a degree."""
     from mepnet.cameras import CameraEstimate, rotation_error
-    from mepnet.manual.page import ComponentRef, Step, StepComponent
+    from mepnet.manual.page import ComponentRef, StepComponent
 
     slope, grille = ComponentRef("3040b", None), ComponentRef("2877", None)
     comps = {r: _bg.Component.primitive(r.part) for r in (slope, grille)}
@@ -330,13 +341,10 @@ def test_a_base_hidden_by_the_new_part_keeps_the_previous_view(tmp_path: Path):
         _bg.Camera(23.67, 315.58, 0.0, 0.0284, (-0.586, -0.850)),
         _bg.Camera(23.67, 315.58, 0.0, 0.0253, (0.069, -0.572)),
     ]
-    steps = []
-    for k, (shape, cam, ref, colour) in enumerate(
-        [(base, cams[0], slope, 73), (whole, cams[1], grille, 28)], start=1
-    ):
-        path = tmp_path / f"step_{k}.png"
-        Image.fromarray(_bg.render(shape, cam, 256, 256).rgb).save(path)
-        steps.append(Step(k, path, None, [StepComponent(ref, 1, colour)], (256, 256)))
+    steps = [
+        _drawn_step(tmp_path, 1, base, cams[0], [StepComponent(slope, 1, 73)]),
+        _drawn_step(tmp_path, 2, whole, cams[1], [StepComponent(grille, 1, 28)]),
+    ]
     est = BuildCameras((256, 256))
     given = CameraEstimate(cams[0], "given")
     est.accept(steps[0], given, None, base)
@@ -456,7 +464,7 @@ def test_two_bricks_standing_apart_from_the_base_keep_the_carried_view(tmp_path:
     fits, so the first camera tried is the carried view at the right zoom (they came first
     and used up every hypothesis: zoom 4-7% off, the bricks misplaced)."""
     from mepnet.cameras import CameraEstimate, rotation_error
-    from mepnet.manual.page import ComponentRef, Step, StepComponent
+    from mepnet.manual.page import ComponentRef, StepComponent
 
     plate, slope, brick = (ComponentRef(p, None) for p in ("3623", "60481", "3622"))
     comps = {r: _bg.Component.primitive(r.part) for r in (plate, slope, brick)}
@@ -470,17 +478,10 @@ def test_two_bricks_standing_apart_from_the_base_keep_the_carried_view(tmp_path:
         _bg.Camera(31.53, 310.26, 0.0, 0.018949, (-0.4710, -0.3821)),
         _bg.Camera(31.53, 310.26, 0.0, 0.0078697, (0.0162, -0.2447)),
     ]
-    steps = []
-    for k, (shape, cam, entry) in enumerate(
-        [
-            (base, cams[0], StepComponent(slope, 1, 19)),
-            (whole, cams[1], StepComponent(brick, 2, 320)),
-        ],
-        start=2,
-    ):
-        path = tmp_path / f"step_{k}.png"
-        Image.fromarray(_bg.render(shape, cam, 256, 256).rgb).save(path)
-        steps.append(Step(k, path, None, [entry], (256, 256)))
+    steps = [
+        _drawn_step(tmp_path, 2, base, cams[0], [StepComponent(slope, 1, 19)]),
+        _drawn_step(tmp_path, 3, whole, cams[1], [StepComponent(brick, 2, 320)]),
+    ]
     est = BuildCameras((256, 256))
     est.accept(steps[0], CameraEstimate(cams[0], "given"), None, base)
     first = next(iter(est.hypotheses(steps[1], base, comps, teacher_forced=False)))
@@ -552,16 +553,14 @@ def test_a_round_first_part_is_seen_from_its_elevation(tmp_path: Path):
     which ranked a 12.5-degree view first (fitted to 8 degrees, the plan built on it wrong).
     Ranked by its rendered silhouette, the search finds the page's 26 degrees of elevation (a
     round part fixes no azimuth: that is the frame convention's)."""
-    from mepnet.manual.page import ComponentRef, Step, StepComponent
+    from mepnet.manual.page import ComponentRef, StepComponent
 
     ref = ComponentRef("3941", None)
     comps = {ref: _bg.Component.primitive(ref.part)}
     shape = _bg.Assembly()
     shape.add(comps[ref], 0, (0, 3, -1), 72)
     cam = _bg.Camera(25.79, 37.64, 0.0, 0.0269, (-0.129, -0.571))
-    path = tmp_path / "step_1.png"
-    Image.fromarray(_bg.render(shape, cam, 256, 256).rgb).save(path)
-    step = Step(1, path, None, [StepComponent(ref, 1, 72)], (256, 256))
+    step = _drawn_step(tmp_path, 1, shape, cam, [StepComponent(ref, 1, 72)])
     got = BuildCameras((256, 256))._first(step, comps).camera
     assert got is not None
     assert abs(got.elevation - cam.elevation) < 1.5, got
@@ -575,7 +574,7 @@ def test_a_first_step_of_three_parts_finds_the_view_of_its_largest(tmp_path: Pat
     previous scale that does not exist, was 22% too large and nothing fitted: the step was
     predicted from the convention's prior view, wrong). The camera is the page's up to a
     quarter turn."""
-    from mepnet.manual.page import ComponentRef, Step, StepComponent
+    from mepnet.manual.page import ComponentRef, StepComponent
 
     refs = [ComponentRef(p, None) for p in ("2877", "2420", "87087")]
     comps = {r: _bg.Component.primitive(r.part) for r in refs}
@@ -586,10 +585,10 @@ def test_a_first_step_of_three_parts_finds_the_view_of_its_largest(tmp_path: Pat
     ):
         shape.add(comps[r], yaw, t, colour)
     cam = _bg.Camera(23.34, 324.43, 0.0, 0.01814, (0.0329, -0.0334))
-    path = tmp_path / "step_1.png"
-    Image.fromarray(_bg.render(shape, cam, 256, 256).rgb).save(path)
     entries = [StepComponent(r, 1, c) for r, c in zip(refs, colours, strict=True)]
-    got = BuildCameras((256, 256))._first(Step(1, path, None, entries, (256, 256)), comps).camera
+    got = (
+        BuildCameras((256, 256))._first(_drawn_step(tmp_path, 1, shape, cam, entries), comps).camera
+    )
     assert got is not None
     assert _turned_error(got, cam) < 1.5, got
     assert abs(got.scale / cam.scale - 1.0) < 0.03, got
@@ -651,13 +650,10 @@ def test_a_hidden_tiny_base_is_not_explained_by_the_previous_zoom(tmp_path: Path
         _bg.Camera(35.896, 313.725, 0.0, 0.049569, (0.25844, 0.17105)),
         _bg.Camera(35.896, 313.725, 0.0, 0.029848, (0.29306, -0.06087)),
     ]
-    steps = []
-    for k, (shape, cam, ref, colour) in enumerate(
-        [(base, cams[0], plate, 72), (whole, cams[1], tile, 0)], start=1
-    ):
-        path = tmp_path / f"step_{k}.png"
-        Image.fromarray(_bg.render(shape, cam, 256, 256).rgb).save(path)
-        steps.append(Step(k, path, None, [StepComponent(ref, 1, colour)], (256, 256)))
+    steps = [
+        _drawn_step(tmp_path, 1, base, cams[0], [StepComponent(plate, 1, 72)]),
+        _drawn_step(tmp_path, 2, whole, cams[1], [StepComponent(tile, 1, 0)]),
+    ]
     est = BuildCameras((256, 256))
     est.accept(steps[0], CameraEstimate(cams[0], "given"), None, base)
     synthesis = make_predictor("synthesis")

@@ -718,11 +718,11 @@ def undecidable(man: Any, run: Any, b: Any, s: Any, truth: list[list[Any]]) -> b
         return False
     if not s.predictions or not all(p.placed for p in s.predictions):
         return False
-    page = b.build.steps[s.index - 1]
-    true_page = (man.main if b.key is None else man.submodules[b.key]).steps[s.index - 1]
+    k = s.index - 1
+    page = b.build.steps[k]
+    true_page = (man.main if b.key is None else man.submodules[b.key]).steps[k]
     if true_page.camera is None:
         return False
-    k = s.index - 1
     truth_shape, predicted = _bg.Assembly(), _bg.Assembly()
     for step in truth[:k]:
         for x in step:
