@@ -14,8 +14,9 @@
 //!   manual renderer; each rendered pixel keeps its colour and its 3D surface point. A robust
 //!   (Tukey) Gauss-Newton / Levenberg-Marquardt loop then moves the camera so that the picture,
 //!   sampled where each surface point projects, shows the rendered colour (mapped onto the
-//!   picture's tones by a per-channel gain and bias), coarse to fine over box-blurred copies of
-//!   picture and template. Pixels of the shape that something new hides are outliers and drop
+//!   picture's tones by a per-channel gain and bias and a shade factor per face axis: other
+//!   renderers light faces differently), coarse to fine over box-blurred copies of picture and
+//!   template. Pixels of the shape that something new hides are outliers and drop
 //!   out, so the same fit serves a picture of exactly the shape and a picture of the shape with
 //!   new parts on it. Sub-pixel: it uses every outline and face edge of the shape, not only its
 //!   silhouette.
@@ -935,6 +936,8 @@ impl FitPicture {
 struct Template {
     pixels: Vec<usize>,
     points: Vec<[f64; 3]>,
+    /// Per sample its lighting class: the face's axis (0..=2, [`crate::raster::Rendered::axes`]) or the page (3).
+    classes: Vec<u8>,
     image: Planes,
     silhouette: Vec<bool>,
 }
@@ -987,6 +990,16 @@ fn render_template(
         .step_by(stride)
         .chain(ring.into_iter().step_by(stride))
         .collect();
+    let classes = pixels
+        .iter()
+        .map(|&i| {
+            if silhouette[i] {
+                r.axes[i].clamp(0, 2) as u8
+            } else {
+                PAGE
+            }
+        })
+        .collect();
     let rot = camera.rotation();
     let (s, [tx, ty]) = (camera.scale, camera.translation);
     let points = pixels
@@ -1002,6 +1015,7 @@ fn render_template(
     Ok(Template {
         pixels,
         points,
+        classes,
         image: Planes::from_rgb(&r.rgb, w, h),
         silhouette,
     })
@@ -1047,22 +1061,50 @@ fn tukey_weight(r: f64, k: f64) -> f64 {
     }
 }
 
-/// One level's data: template colours at the samples, picture and its gradients.
+/// One level's data: template colours and lighting classes at the samples, picture and its
+/// gradients.
 struct Level<'a> {
     points: &'a [[f64; 3]],
     template: Vec<[f32; 3]>,
+    classes: &'a [u8],
     picture: &'a Planes,
     gx: &'a Planes,
     gy: &'a Planes,
 }
 
-/// Per-channel gain and bias.
-type Tone = [[f64; 2]; 3];
+/// The lighting class of page samples (faces are 0..=2, their axis).
+const PAGE: u8 = 3;
+
+/// How template colours map onto the picture's: per channel a gain and bias (another renderer's
+/// tone curve and page tint), and per lighting class a shade factor (another renderer lights
+/// faces of each axis differently: LeoCAD draws the faces mepnet darkens most at 1.6 times
+/// mepnet's brightness); the page's shade is 1. A sample of colour `t` and class `k` is drawn
+/// as `gain * shade[k] * t + bias`.
+#[derive(Clone, Copy, Debug)]
+struct Tone {
+    channels: [[f64; 2]; 3],
+    shade: [f64; 4],
+}
+
+impl Tone {
+    const IDENTITY: Tone = Tone {
+        channels: [[1.0, 0.0]; 3],
+        shade: [1.0; 4],
+    };
+
+    /// The template colour `t` of channel `c` and class `k` as the picture should show it.
+    fn model(&self, c: usize, k: u8, t: f32) -> f64 {
+        self.channels[c][0] * self.shade[k as usize] * t as f64 + self.channels[c][1]
+    }
+}
 
 /// The range of the tone's per-channel gain and bias: another renderer's tone curve, page tint
 /// and shading, but not the freedom to map one part colour onto another.
 const TONE_GAIN: (f64, f64) = (0.7, 1.4);
 const TONE_BIAS: f64 = 0.25;
+/// The range of a lighting class's shade factor, and the samples a class needs to fit one.
+const SHADE: (f64, f64) = (0.55, 1.8);
+const SHADE_MIN_SAMPLES: usize = 24;
 
 /// Where a sample projects and the picture's colour there (None: off the picture).
 type Seen = Option<([f64; 2], [f32; 3])>;
@@ -1083,16 +1125,33 @@ impl Level<'_> {
             .collect()
     }
 
-    /// The tone (gain, bias per channel) mapping template colours onto picture colours, fitted
-    /// by weighted least squares; starts from the identity shifted by the median difference and
-    /// from plain least squares, keeps the one more samples follow, refits on its inliers.
+    /// The tone mapping template colours onto picture colours: the channels' gain and bias
+    /// with the shades as they stand, then each lighting class's shade with those, twice, and
+    /// the channels once more.
     fn tone(&self, seen: &[Seen], k: f64) -> Tone {
+        let mut tone = Tone::IDENTITY;
+        for round in 0..3 {
+            tone.channels = self.channel_tone(seen, &tone.shade, k);
+            if round < 2 {
+                tone.shade = self.shades(seen, &tone, k);
+            }
+        }
+        tone
+    }
+
+    /// Per channel, gain and bias by weighted least squares (the template shaded by `shade`);
+    /// starts from the identity shifted by the median difference and from plain least squares,
+    /// keeps the one more samples follow, refits on its inliers.
+    fn channel_tone(&self, seen: &[Seen], shade: &[f64; 4], k: f64) -> [[f64; 2]; 3] {
         let mut tone = [[1.0, 0.0]; 3];
         for (c, t) in tone.iter_mut().enumerate() {
             let pairs: Vec<(f64, f64)> = seen
                 .iter()
                 .zip(&self.template)
-                .filter_map(|(s, tv)| s.map(|(_, pv)| (tv[c] as f64, pv[c] as f64)))
+                .zip(self.classes)
+                .filter_map(|((s, tv), &cl)| {
+                    s.map(|(_, pv)| (shade[cl as usize] * tv[c] as f64, pv[c] as f64))
+                })
                 .collect();
             if pairs.len() < 16 {
                 continue;
@@ -1145,14 +1204,56 @@ impl Level<'_> {
         tone
     }
 
+    /// Each face class's shade factor for the channels' gain and bias of `tone`: robust
+    /// (Tukey-weighted) least squares over the class's samples and channels, from its current
+    /// shade; a class with few samples, or dark ones only (that say nothing of it), keeps it.
+    fn shades(&self, seen: &[Seen], tone: &Tone, k: f64) -> [f64; 4] {
+        let mut shade = tone.shade;
+        for (class, sh) in shade.iter_mut().enumerate().take(PAGE as usize) {
+            // per sample and channel: (gain * template, picture - bias)
+            let pairs: Vec<(f64, f64)> = seen
+                .iter()
+                .zip(&self.template)
+                .zip(self.classes)
+                .filter(|(_, &cl)| cl as usize == class)
+                .filter_map(|((s, tv), _)| s.map(|(_, pv)| (tv, pv)))
+                .flat_map(|(tv, pv)| {
+                    (0..3).map(move |c| {
+                        let [g, b] = tone.channels[c];
+                        (g * tv[c] as f64, pv[c] as f64 - b)
+                    })
+                })
+                .collect();
+            if pairs.len() < 3 * SHADE_MIN_SAMPLES {
+                continue;
+            }
+            let mut s = *sh;
+            for _ in 0..3 {
+                let (mut num, mut den) = (0.0, 0.0);
+                for &(a, y) in &pairs {
+                    let w = tukey_weight(y - s * a, k);
+                    num += w * a * y;
+                    den += w * a * a;
+                }
+                // a face class of dark colours only: its shade hardly shows
+                if den < 0.05 * pairs.len() as f64 * 0.25 * 0.25 {
+                    break;
+                }
+                s = (num / den).clamp(SHADE.0, SHADE.1);
+            }
+            *sh = s;
+        }
+        shade
+    }
+
     /// Mean robust cost of sampled colours.
     fn cost_of(&self, seen: &[Seen], tone: &Tone, k: f64) -> f64 {
         let mut cost = 0.0;
-        for (s, tv) in seen.iter().zip(&self.template) {
+        for ((s, tv), &cl) in seen.iter().zip(&self.template).zip(self.classes) {
             cost += match s {
                 None => 3.0 * k * k / 6.0,
                 Some((_, pv)) => (0..3)
-                    .map(|c| tukey_rho(pv[c] as f64 - (tone[c][0] * tv[c] as f64 + tone[c][1]), k))
+                    .map(|c| tukey_rho(pv[c] as f64 - tone.model(c, cl, tv[c]), k))
                     .sum(),
             };
         }
@@ -1176,7 +1277,13 @@ impl Level<'_> {
         let mut jtj = [[0.0f64; 6]; 6];
         let mut jtr = [0.0f64; 6];
         let mut used = 0;
-        for ((x, s), tv) in self.points.iter().zip(&seen).zip(&self.template) {
+        for (((x, s), tv), &cl) in self
+            .points
+            .iter()
+            .zip(&seen)
+            .zip(&self.template)
+            .zip(self.classes)
+        {
             let Some((q, pv)) = s else {
                 continue;
             };
@@ -1192,7 +1299,7 @@ impl Level<'_> {
             let gx = self.gx.sample3(q[0], q[1]);
             let gy = self.gy.sample3(q[0], q[1]);
             for c in 0..3 {
-                let r = pv[c] as f64 - (tone[c][0] * tv[c] as f64 + tone[c][1]);
+                let r = pv[c] as f64 - tone.model(c, cl, tv[c]);
                 let wgt = tukey_weight(r, k);
                 if wgt == 0.0 {
                     continue;
@@ -1301,6 +1408,7 @@ pub fn fit_camera(
         let [pb, gx, gy] = &*pyramid;
         let level = Level {
             points: &template.points,
+            classes: &template.classes,
             template: template
                 .pixels
                 .iter()
@@ -1368,11 +1476,10 @@ pub fn fit_camera(
         let good = seen
             .iter()
             .zip(&level.template)
-            .filter(|(s, tv)| {
+            .zip(level.classes)
+            .filter(|((s, tv), &cl)| {
                 s.is_some_and(|(_, pv)| {
-                    (0..3).all(|c| {
-                        (pv[c] as f64 - (tone[c][0] * tv[c] as f64 + tone[c][1])).abs() < k / 2.0
-                    })
+                    (0..3).all(|c| (pv[c] as f64 - tone.model(c, cl, tv[c])).abs() < k / 2.0)
                 })
             })
             .count();

@@ -126,6 +126,10 @@ pub struct Rendered {
     pub depth: Vec<f32>,
     /// Id of the item seen at each pixel; -1 on the background.
     pub ids: Vec<i32>,
+    /// The world axis (0 x, 1 y, 2 z) the visible face's normal lies closest to, per pixel; -1
+    /// on the background. Faces of one axis are lit alike: another renderer's lighting differs
+    /// by axis (what [`crate::camfit::fit_camera`] models).
+    pub axes: Vec<i8>,
     /// Per id (0..=max id): samples where it is the visible surface (supersampled resolution).
     pub visible_samples: Vec<u64>,
     /// Per id: samples its triangles cover, ignoring occlusion.
@@ -464,11 +468,26 @@ pub fn render_marked(
     let mut rgb = vec![0u8; ow * oh * 3];
     let mut out_depth = vec![f32::INFINITY; ow * oh];
     let mut out_ids = vec![-1i32; ow * oh];
+    let mut out_axes = vec![-1i8; ow * oh];
+    let axis_of = |i: usize| -> i8 {
+        if item[i] < 0 {
+            return -1;
+        }
+        let n = faces[face[i] as usize].0.map(f32::abs);
+        if n[0] >= n[1] && n[0] >= n[2] {
+            0
+        } else if n[1] >= n[2] {
+            1
+        } else {
+            2
+        }
+    };
     rgb.par_chunks_mut(ow * 3)
         .zip(out_depth.par_chunks_mut(ow))
         .zip(out_ids.par_chunks_mut(ow))
+        .zip(out_axes.par_chunks_mut(ow))
         .enumerate()
-        .for_each(|(y, ((rgb_row, d_row), id_row))| {
+        .for_each(|(y, (((rgb_row, d_row), id_row), axis_row))| {
             for x in 0..ow {
                 let mut acc = [0f32; 3];
                 for sy in 0..ss {
@@ -486,6 +505,7 @@ pub fn render_marked(
                 let centre = (y * ss + ss / 2) * w + x * ss + ss / 2;
                 d_row[x] = depth[centre];
                 id_row[x] = id_at(centre);
+                axis_row[x] = axis_of(centre);
             }
         });
     Ok(Rendered {
@@ -494,6 +514,7 @@ pub fn render_marked(
         rgb,
         depth: out_depth,
         ids: out_ids,
+        axes: out_axes,
         visible_samples: visible,
         total_samples: total,
     })
