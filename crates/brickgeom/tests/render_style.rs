@@ -335,3 +335,53 @@ fn bad_styles_are_errors_not_panics() {
         assert!(e.to_string().contains("style"), "{e}");
     }
 }
+
+/// Each pixel reports the world axis its visible face's normal lies closest to (what the camera
+/// fit's shade per face axis groups by): the page none, a brick seen from high above mostly its
+/// top (y), seen from near the ground mostly its sides (x and z, both of a three-quarter view).
+#[test]
+fn pixels_report_the_axis_of_their_face() {
+    use brickgeom::camera::Camera;
+    use brickgeom::Pose;
+    use std::sync::Arc;
+    let mut asm = brickgeom::Assembly::new();
+    let brick = Arc::new(brickgeom::component::Component::primitive("3001").unwrap());
+    asm.add(brick, Pose::new(0, [0, 3, 0])).unwrap();
+    let corners: Vec<[f64; 3]> = [-40.0, 40.0]
+        .iter()
+        .flat_map(|&x| [0.0, 28.0].map(move |y| (x, y)))
+        .flat_map(|(x, y)| [-20.0, 20.0].map(move |z| [x, y, z]))
+        .collect();
+    let share_up = |elevation: f64| {
+        let cam = Camera::new(elevation, 30.0, 0.0, 1.0, [0.0, 0.0])
+            .unwrap()
+            .fitted(&corners, 0.8)
+            .unwrap();
+        let r = brickgeom::scene::render_assembly(
+            &asm,
+            &cam,
+            &RenderOptions::new(128, 128),
+            &ColourTable::builtin(),
+            &MeshSource::builtin(),
+        )
+        .unwrap();
+        assert_eq!(r.axes.len(), r.ids.len());
+        for (a, i) in r.axes.iter().zip(&r.ids) {
+            assert_eq!(
+                *a < 0,
+                *i < 0,
+                "page pixels, and only they, have no face axis"
+            );
+        }
+        let count = |k: i8| r.axes.iter().filter(|&&a| a == k).count() as f64;
+        let drawn = count(0) + count(1) + count(2);
+        (count(1) / drawn, count(0) / drawn, count(2) / drawn)
+    };
+    let (up, _, _) = share_up(85.0);
+    assert!(up > 0.8, "from above, the top: {up}");
+    let (up, x, z) = share_up(5.0);
+    assert!(
+        up < 0.3 && x > 0.1 && z > 0.1,
+        "from the side: {up} {x} {z}"
+    );
+}
