@@ -936,7 +936,8 @@ impl FitPicture {
 struct Template {
     pixels: Vec<usize>,
     points: Vec<[f64; 3]>,
-    /// Per sample its lighting class: the face's axis (0..=2, [`crate::raster::Rendered::axes`]) or the page (3).
+    /// Per sample its lighting class: the face's axis (0..=2,
+    /// [`crate::raster::Rendered::axes`]) or the page ([`PAGE`]).
     classes: Vec<u8>,
     image: Planes,
     silhouette: Vec<bool>,
@@ -1105,6 +1106,9 @@ const TONE_BIAS: f64 = 0.25;
 /// The range of a lighting class's shade factor, and the samples a class needs to fit one.
 const SHADE: (f64, f64) = (0.55, 1.8);
 const SHADE_MIN_SAMPLES: usize = 24;
+/// The least mean square of a class's (gain x template) values that fits its shade: below it the
+/// class's colours are all darker than about 6% of white and show no shade.
+const SHADE_MIN_SQUARE: f64 = 0.003_125;
 
 /// Where a sample projects and the picture's colour there (None: off the picture).
 type Seen = Option<([f64; 2], [f32; 3])>;
@@ -1236,7 +1240,7 @@ impl Level<'_> {
                     den += w * a * a;
                 }
                 // a face class of dark colours only: its shade hardly shows
-                if den < 0.05 * pairs.len() as f64 * 0.25 * 0.25 {
+                if den < SHADE_MIN_SQUARE * pairs.len() as f64 {
                     break;
                 }
                 s = (num / den).clamp(SHADE.0, SHADE.1);
