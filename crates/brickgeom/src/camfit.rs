@@ -991,15 +991,10 @@ fn render_template(
         .step_by(stride)
         .chain(ring.into_iter().step_by(stride))
         .collect();
+    // the renderer gives the page no axis (-1)
     let classes = pixels
         .iter()
-        .map(|&i| {
-            if silhouette[i] {
-                r.axes[i].clamp(0, 2) as u8
-            } else {
-                PAGE
-            }
-        })
+        .map(|&i| u8::try_from(r.axes[i]).unwrap_or(PAGE))
         .collect();
     let rot = camera.rotation();
     let (s, [tx, ty]) = (camera.scale, camera.translation);
