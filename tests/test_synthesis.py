@@ -60,9 +60,27 @@ def test_a_stack_of_equal_parts_is_solved_as_a_whole(stack: Path, monkeypatch: p
     last = run.main.steps[-1]
     assert step_matches(run, last) == 3
     assert [p.t[1] for p in last.predictions] == [6, 9, 12]  # bottom to top
+    assert not any(p.extra.get("over_budget") for p in last.predictions)
     monkeypatch.setattr(synthesis, "FIRST_CHOICES", 1)  # the greedy alone
     greedy = run_manual(m, make_predictor("synthesis"), teacher_forced=True)
     assert step_matches(greedy, greedy.main.steps[-1]) < 3  # what the revisiting buys
+
+
+def test_a_step_out_of_time_keeps_its_first_solution_and_says_so(
+    stack: Path, monkeypatch: pytest.MonkeyPatch
+):
+    """Once a step's budget is spent nothing is revisited: the greedy's solution is finished
+    and kept (every part placed), and the plan flags the step."""
+    import mepnet.stage2.synthesis as synthesis
+
+    monkeypatch.setattr(synthesis, "STEP_BUDGET_S", 0.0)
+    run = run_manual(load_manual(stack), make_predictor("synthesis"), teacher_forced=True)
+    last = run.main.steps[-1]
+    assert all(p.placed for p in last.predictions)
+    assert all(p.extra.get("over_budget") for p in last.predictions)
+    assert step_matches(run, last) < 3  # the stack needed the revisits the budget cut
+    assert last.check is not None
+    assert any("ran out of time" in f for f in last.check.flags)
 
 
 #: A wall of two 1x6 bricks, then a stack of two 1x6 bricks on the ground in front of it.

@@ -42,6 +42,8 @@ def check_step(ctx: StepContext, preds: list[Prediction], shape: _bg.Assembly) -
     missing = sum(1 for p in preds if not p.placed or p.failure is not None)
     if missing:
         flags.append(f"{missing} of {len(preds)} components not placed")
+    if any(p.extra.get("over_budget") for p in preds):
+        flags.append("stage 2 ran out of time: its first solution kept, not revisited")
     if ctx.step.camera is None:
         return StepCheck(None, [*flags, "no camera"])
     w, h = ctx.image_size

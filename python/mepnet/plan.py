@@ -260,6 +260,9 @@ UNLIKELY = 0.1
 POOR = 0.5
 #: Camera hypotheses predicted with at most, per step.
 MAX_HYPOTHESES = 4
+#: No further camera hypothesis is predicted with once a step's predictions took this long
+#: (seconds; each prediction is bounded by stage 2's own budget).
+HYPOTHESES_BUDGET_S = 20.0
 #: A first step is predicted again when fitting the camera to its predicted shape moved it
 #: more than this (pixels, RMS over the shape).
 REPREDICT_PX = 0.5
@@ -302,7 +305,11 @@ def _estimated_camera_step(
     best: tuple[float, list[Prediction], CameraEstimate, Any, _bg.Assembly, bool] | None = None
     for tried, est in enumerate(cameras.hypotheses(page_step, base, components, teacher_forced)):
         spent += est.seconds
-        if est.failure is not None or tried == MAX_HYPOTHESES:
+        if (
+            est.failure is not None
+            or tried == MAX_HYPOTHESES
+            or (best is not None and seconds >= HYPOTHESES_BUDGET_S)
+        ):
             if best is None:
                 est = dataclasses.replace(est, seconds=spent)
                 cameras.accept(page_step, est, None)

@@ -22,6 +22,8 @@ leave every mask, so the next instance fits the rest.
 
 from __future__ import annotations
 
+import dataclasses
+import time
 from dataclasses import dataclass
 from typing import Any
 
@@ -238,11 +240,13 @@ def synthesize(
     time_limit_s: float = 10.0,
     picture: np.ndarray | None = None,
     tone: np.ndarray | None = None,
+    budget_s: float | None = None,
 ) -> list[Prediction]:
     """Poses for every instance of ``types`` on ``ctx.base`` (see the module docstring);
     ``picture``: the step image as floats in [0, 1] when the caller has read it already;
     ``tone``: its tone fit, (2, 3) gain and bias per channel, from :func:`step_change` (none:
-    colours compared as rendered).
+    colours compared as rendered); ``time_limit_s``: each placement search's limit;
+    ``budget_s``: the whole step's (default :data:`STEP_BUDGET_S`; see below).
 
     A step is solved greedily, one instance at a time; while the finished step explains the
     changed pixels poorly (:func:`_explained` below :data:`WELL_EXPLAINED`), each decision in
@@ -260,7 +264,14 @@ def synthesize(
     worse than :data:`WIDE_BELOW`, the step is solved again with the ground searched wherever
     the picture shows a change (a part standing on its own, away from the base: see
     ``abys_ranked``'s ``wide_ground``), and that solution is kept when it explains the picture
-    better by :data:`WIDE_MARGIN`."""
+    better by :data:`WIDE_MARGIN`.
+
+    The step's budget: once it is spent, no decision is revisited and the ground is not searched
+    again; the greedy solution under way is finished, each of its remaining placement searches
+    limited to what is left of the budget but at least :data:`MIN_SEARCH_S` (a step whose
+    pictures match nothing -- a wrong camera -- would otherwise search for many minutes). The
+    predictions of a step that ran out of budget say so (``extra["over_budget"]``)."""
+    deadline = time.perf_counter() + (STEP_BUDGET_S if budget_s is None else budget_s)
     if not COLOUR_WEIGHT:
         picture = None
     elif picture is None:
@@ -269,12 +280,21 @@ def synthesize(
         tone = np.array([[1.0, 1.0, 1.0], [0.0, 0.0, 0.0]])  # gain, bias per channel
     # a build's first step: every part stands on the ground, wherever the picture shows it
     first = len(ctx.base) == 0
-    preds, score = _solve(ctx, types, time_limit_s, picture, tone, first)
-    if score < WIDE_BELOW and not first:
-        wide, wide_score = _solve(ctx, types, time_limit_s, picture, tone, True)
+    preds, score = _solve(ctx, types, time_limit_s, picture, tone, first, deadline)
+    if score < WIDE_BELOW and not first and time.perf_counter() < deadline:
+        wide, wide_score = _solve(ctx, types, time_limit_s, picture, tone, True, deadline)
         if wide_score > score + WIDE_MARGIN:
-            return wide
+            preds = wide
+    if time.perf_counter() >= deadline:
+        preds = [dataclasses.replace(p, extra={**p.extra, "over_budget": True}) for p in preds]
     return preds
+
+
+#: Seconds one step's synthesis may take before it stops revisiting decisions
+#: (:func:`synthesize`); the median step takes well under a second.
+STEP_BUDGET_S = 10.0
+#: A placement search's least time limit once the step's budget is spent.
+MIN_SEARCH_S = 0.25
 
 
 #: A step explained worse than this (:func:`_explained`) is solved again with the ground
@@ -292,26 +312,27 @@ def _solve(
     picture: np.ndarray | None,
     tone: np.ndarray,
     wide: bool,
+    deadline: float = float("inf"),
 ) -> tuple[list[Prediction], float]:
     """:func:`synthesize`'s greedy with its revisits, the ground searched beside the base or
-    (``wide``) wherever the picture changed; returns the predictions and how well they explain
-    the picture (:func:`_explained`)."""
+    (``wide``) wherever the picture changed, no revisit begun after ``deadline``
+    (``time.perf_counter``); returns the predictions and how well they explain the picture
+    (:func:`_explained`)."""
     w, h = ctx.image_size
     mask = np.zeros((h, w), bool)
     for t in types:
         mask |= t.mask
     memo: dict[frozenset[First], tuple[Any, list[tuple[float, First]]]] = {}
-    preds, taken, options = _greedy(ctx, types, time_limit_s, picture, tone, [], wide, memo)
+    args = (ctx, types, time_limit_s, picture, tone)
+    preds, taken, options = _greedy(*args, [], wide, memo, deadline)
     score = _explained(ctx, preds, mask, picture, tone)
     # a later decision taken first: a part that shows little until what stands on it is
     # placed (the bottom brick of a stack, hidden by the top one) is never among the first
     # choices, and the top one is not valid before it
     for later in list(taken[1:]) if LATER_FIRST else []:
-        if score >= WELL_EXPLAINED:
+        if score >= WELL_EXPLAINED or time.perf_counter() >= deadline:
             break
-        alt_preds, alt_taken, alt_options = _greedy(
-            ctx, types, time_limit_s, picture, tone, [later], wide, memo
-        )
+        alt_preds, alt_taken, alt_options = _greedy(*args, [later], wide, memo, deadline)
         alt_score = _explained(ctx, alt_preds, mask, picture, tone)
         if alt_score > score + 1e-6:
             preds, score, taken, options = alt_preds, alt_score, alt_taken, alt_options
@@ -319,10 +340,10 @@ def _solve(
     level = 0
     while score < WELL_EXPLAINED and level < len(taken):
         for alt in options[level][1:FIRST_CHOICES]:
-            if alt == taken[level]:
+            if alt == taken[level] or time.perf_counter() >= deadline:
                 continue
             alt_preds, alt_taken, alt_options = _greedy(
-                ctx, types, time_limit_s, picture, tone, [*taken[:level], alt], wide, memo
+                *args, [*taken[:level], alt], wide, memo, deadline
             )
             alt_score = _explained(ctx, alt_preds, mask, picture, tone)
             if alt_score > score + 1e-6:
@@ -380,9 +401,12 @@ def _greedy(
     prefix: list[First],
     wide: bool = False,
     memo: dict[frozenset[First], tuple[Any, list[tuple[float, First]]]] | None = None,
+    deadline: float = float("inf"),
 ) -> tuple[list[Prediction], list[First], list[list[First]]]:
     """The greedy of :func:`synthesize`, its first decisions forced to ``prefix``, the ground
-    searched wherever the picture changed when ``wide``. Returns the
+    searched wherever the picture changed when ``wide``, each placement search limited to
+    ``time_limit_s`` and to what is left before ``deadline`` (at least :data:`MIN_SEARCH_S`).
+    Returns the
     predictions, the decision taken at each round and each unforced round's candidates, best
     first (distinct placements: a symmetric part's equal yaws once).
 
@@ -416,8 +440,9 @@ def _greedy(
             m = t.mask & unexplained
             if not m.any():
                 continue
+            limit = min(time_limit_s, max(deadline - time.perf_counter(), MIN_SEARCH_S))
             ranked, timed_out = _bg.abys_ranked(
-                asm, cam, w, h, t.component, m, 4 * RANKED, time_limit_s, wide_ground=wide
+                asm, cam, w, h, t.component, m, 4 * RANKED, limit, wide_ground=wide
             )
             distinct: list[tuple[int, tuple[int, int, int], float]] = []
             for yaw, tr, iou in ranked:
