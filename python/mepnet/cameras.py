@@ -19,9 +19,12 @@ start is decided here, per build, step after step (:class:`BuildCameras`):
 - **The first step** (nothing built yet): no picture can fix the world frame (any quarter turn
   and lattice shift of the whole build looks the same), so it is fixed by convention: the
   azimuth lies in the canonical quarter [180, 270). A step adding one component: the orientation
-  is searched and fitted with that component standing at the origin. Several: a prior view
-  (elevation 27.5, azimuth 225) framed to the foreground; after the predictor placed the step the
-  camera is fitted to the predicted shape and the step predicted again (:meth:`refit_first`).
+  is searched and fitted with that component standing at the origin. Several: each component
+  in turn (the largest first, at most :data:`FIRST_PARTS`) is searched for inside the drawing
+  and its fits are hypotheses, best first, and the prior view (elevation 27.5, azimuth 225)
+  framed to the foreground is the last; the plan loop predicts the step with each in turn until
+  one explains the picture (a round part fits many views equally: the next component decides),
+  fitting the camera to the predicted shape and predicting again each time.
 - **Failure.** A blank picture, or a best fit that explains the picture badly (the known shape's
   silhouette off the drawing, or its colours not where the camera puts them): the step gets
   :attr:`CameraEstimate.failure` and the plan loop fails its components with that reason.
@@ -54,6 +57,9 @@ __all__ = [
     "drop_cameras",
 ]
 
+#: A first step of several components: the components searched for inside the drawing, each
+#: one's fits a camera hypothesis (the largest first).
+FIRST_PARTS = 3
 #: The first step's convention: elevation, and the canonical quarter of azimuths [180, 270).
 FIRST_ELEVATION = 27.5
 FIRST_AZIMUTH = 225.0
@@ -329,14 +335,20 @@ def _distinct(fits: list[tuple[float, _bg.Camera]], n: int) -> list[tuple[float,
     elevation from every better one."""
     out: list[tuple[float, _bg.Camera]] = []
     for score, cam in sorted(fits, key=lambda f: -f[0]):
-        if all(
-            abs(_angle(cam.azimuth - c.azimuth)) > 15 or abs(cam.elevation - c.elevation) > 7.5
-            for _, c in out
-        ):
+        if _differs(cam, [c for _, c in out]):
             out.append((score, cam))
             if len(out) == n:
                 break
     return out
+
+
+def _differs(cam: _bg.Camera, others: list[_bg.Camera]) -> bool:
+    """Whether ``cam`` differs by more than 15 degrees of azimuth or 7.5 of elevation from every
+    camera of ``others``."""
+    return all(
+        abs(_angle(cam.azimuth - c.azimuth)) > 15 or abs(cam.elevation - c.elevation) > 7.5
+        for c in others
+    )
 
 
 def _angle(d: float) -> float:
@@ -441,7 +453,7 @@ class BuildCameras:
         (the plan loop stops at the first that explains the picture); a single failed estimate
         when none fits. ``base``: the shape before the step."""
         if len(base) == 0:
-            return iter([self._first(step, components)])
+            return self._first(step, components)
         previous = None
         same_frame = True
         verified = False
@@ -708,41 +720,56 @@ class BuildCameras:
 
     # -- the steps -----------------------------------------------------------------------------
 
-    def _first(self, step: Step, components: dict[ComponentRef, _bg.Component]) -> CameraEstimate:
-        """The camera of a build's first step (nothing built yet), by the frame convention (see
-        the module docs)."""
+    def _first(
+        self, step: Step, components: dict[ComponentRef, _bg.Component]
+    ) -> Iterator[CameraEstimate]:
+        """Cameras for a build's first step (nothing built yet), by the frame convention (see
+        the module docs), most likely first, each made when it is asked for."""
         clock = _Clock()
         pic = self.picture(step)
         if pic.blank:
-            return _failed("the picture is blank", clock)
+            yield _failed("the picture is blank", clock)
+            return
         entries = [c for c in step.components if c.component in components]
         if not entries:
-            return _failed("the step adds nothing mepnet can place", clock)
+            yield _failed("the step adds nothing mepnet can place", clock)
+            return
+
+        def first(cam: _bg.Camera, fit_score: float | None = None) -> CameraEstimate:
+            return CameraEstimate(
+                cam, "estimated", fit_score, "first step", seconds=clock.lap(), frame="convention"
+            )
+
         if len(entries) == 1 and entries[0].count == 1:
             fit = self._search_full(_alone(components, entries[0]), pic, n=4)
             if fit is not None and _full_ok(fit):
-                cam, fit_score = canonical(fit.camera), fit.agree
+                yield first(canonical(fit.camera), fit.agree)
             else:  # the plan loop fits it to the predicted step, and judges
-                cam, fit_score = self._prior_view(pic, entries, components), None
-        else:
-            # several components: the largest must lie inside the drawing; the plan loop then
-            # fits the camera to the whole predicted step and predicts again
-            largest = max(entries, key=lambda e: len(np.asarray(components[e.component].voxels)))
-            fits = [f for f in self._search_inside(_alone(components, largest), pic) if _part_ok(f)]
-            if fits:
-                best = max(fits, key=_part_score)
-                cam = canonical(best.camera)
-            else:
-                cam = self._prior_view(pic, entries, components)
-            fit_score = None
-        return CameraEstimate(
-            cam,
-            "estimated",
-            fit_score,
-            "first step",
-            seconds=clock.lap(),
-            frame="convention",
-        )
+                yield first(self._prior_view(pic, entries, components))
+            return
+        # several components: each must lie inside the drawing; the plan loop fits the camera
+        # to the whole predicted step and predicts again. The largest's best fit first, then
+        # every other fit of it and of the next largest, best first
+        by_size = sorted(entries, key=lambda e: -len(np.asarray(components[e.component].voxels)))
+        parts = list({e.component: e for e in by_size}.values())[:FIRST_PARTS]
+
+        def fits_of(e: Any) -> list[_bg.CameraFit]:
+            found = [f for f in self._search_inside(_alone(components, e), pic) if _part_ok(f)]
+            return sorted(found, key=_part_score, reverse=True)
+
+        rest = fits_of(parts[0])
+        seen: list[_bg.Camera] = []
+        if rest:
+            seen.append(canonical(rest.pop(0).camera))
+            yield first(seen[0])
+        for e in parts[1:]:
+            rest += fits_of(e)
+        for fit in sorted(rest, key=_part_score, reverse=True):
+            cam = canonical(fit.camera)
+            if all(_differs(cam, [c]) or abs(math.log(cam.scale / c.scale)) > 0.15 for c in seen):
+                seen.append(cam)
+                yield first(cam)
+        yield first(self._prior_view(pic, entries, components))
 
     def _prior_view(
         self, pic: _Picture, entries: list[Any], components: dict[ComponentRef, _bg.Component]
