@@ -265,6 +265,23 @@ def test_line_restyling_changes_only_edges():
         restyle_lines(img, ids, rng, "dotted")
 
 
+def test_thick_lines_are_centred_on_the_edges():
+    """Thick lines straddle each edge: the ink of a square drawn with them is centred on the
+    square (they once lay right of and below each edge, moving the drawing 0.5-1.5 px right
+    and down, and a camera fitted to the picture with it)."""
+    ids = np.full((40, 40), -1)
+    ids[10:30, 12:28] = 0  # centred on (19.5, 19.5)
+    img = np.full((40, 40, 3), 220.0, dtype=np.float32)
+    img[ids >= 0] = 150.0
+    widths = set()
+    for seed in range(6):
+        thick = restyle_lines(img, ids, np.random.default_rng(seed), "thick")
+        rows, cols = np.nonzero(np.any(thick != img, axis=2))
+        assert abs(rows.mean() - 19.5) < 0.25 and abs(cols.mean() - 19.5) < 0.25, seed
+        widths.add(int(np.any(thick[20] != img[20], axis=1)[:20].sum()))
+    assert widths == {2, 4}  # the left edge's line, both widths
+
+
 def test_change_map_survives_large_dark_new_parts():
     """New parts covering much of a white page (dark plates over a small brick) must not pull
     the gain/bias fit so far that the unchanged background reads as changed."""
