@@ -451,9 +451,10 @@ class BuildCameras:
     ) -> Iterator[CameraEstimate]:
         """Cameras for a step without one, most likely first, each made when it is asked for
         (the plan loop stops at the first that explains the picture); a single failed estimate
-        when none fits. ``base``: the shape before the step."""
+        when none fits. ``base``: the shape before the step. Each estimate's ``seconds`` are
+        those spent making it (not the caller's between two)."""
         if len(base) == 0:
-            return self._first(step, components)
+            return _timed(self._first(step, components))
         previous = None
         same_frame = True
         verified = False
@@ -475,7 +476,9 @@ class BuildCameras:
                     cam = min(moved, key=lambda c: _front_distance(c.azimuth))
                     prev = dataclasses.replace(prev, camera=cam)
                     previous = (prev_step, prev)
-        return self._next(step, base, components, previous, same_frame, verified and same_frame)
+        return _timed(
+            self._next(step, base, components, previous, same_frame, verified and same_frame)
+        )
 
     def check(self, step: Step, shape: _bg.Assembly, est: CameraEstimate) -> _bg.CameraFit | None:
         """The camera fitted again (close, all six parameters) to the shape after the step (base
@@ -1229,6 +1232,18 @@ def _why(what: str, fit: _bg.CameraFit | None) -> str:
         f"{what} (best fit: {100 * fit.agree:.0f}% of its pixels agree, "
         f"{100 * fit.inside:.0f}% of its silhouette on the drawing)"
     )
+
+
+def _timed(estimates: Iterator[CameraEstimate]) -> Iterator[CameraEstimate]:
+    """``estimates`` with each one's ``seconds`` the time its own making took: the generator
+    runs only while asked for the next (a lap clock inside it also counted the time the plan
+    loop spent predicting the step with the previous one)."""
+    while True:
+        t0 = time.perf_counter()
+        est = next(estimates, None)
+        if est is None:
+            return
+        yield dataclasses.replace(est, seconds=time.perf_counter() - t0)
 
 
 class _Clock:
