@@ -109,11 +109,19 @@ def test_abys_reports_components_over_their_time_limit(manuals: Path):
     assert m["n_failures"] >= m["n_timeouts"]
 
 
-def test_synthesis_lifts_from_the_change_alone(manuals: Path):
+def test_synthesis_lifts_from_the_change_alone(manuals: Path, monkeypatch: pytest.MonkeyPatch):
     one = sorted(manuals.iterdir())[0]
     m = evaluate(one, make_predictor("synthesis"), cd_points=2000, progress=False)
     assert m["n_steps"] > 5
     assert m["component_acc"] > 0.85, m
+    assert m["over_budget_steps"] == 0
+    # with no time at all every step keeps its first solution, and the figures say so
+    import mepnet.stage2.synthesis as synthesis
+
+    monkeypatch.setattr(synthesis, "STEP_BUDGET_S", 0.0)
+    rushed = evaluate(one, make_predictor("synthesis"), cd_points=200, progress=False)
+    assert rushed["over_budget_steps"] == rushed["n_steps"]
+    assert sum(len(pm["over_budget"]) for pm in rushed["per_manual"]) == rushed["n_steps"]
 
 
 def test_bad_input_exits_2(tmp_path: Path, manuals: Path):

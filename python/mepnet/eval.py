@@ -42,6 +42,10 @@ Metrics (paper §5.1), written as JSON with the keys of DESIGN §8:
 - ``n_timeouts`` / ``timeout_share`` (predictors with a per-component time limit: ``abys``,
   ``oracle-abys``): components whose search hit the limit in the teacher-forced run, as a count
   and as a share of the components (the paper's TLE).
+- ``over_budget_steps``: steps whose stage 2 ran out of its time budget (the greedy's first
+  solution kept, nothing revisited: ``mepnet.stage2.synthesis.STEP_BUDGET_S``), with where
+  they are per manual (``over_budget``). The budget is wall-clock: on a slower or busier
+  machine more steps may hit it; a figure with none is unaffected by it.
 - ``submodule_component_acc`` / ``submodule_component_cd``: the same, over submodule components.
 """
 
@@ -370,6 +374,7 @@ def evaluate(
     ar_revisions = 0
     ar_repair_seconds: list[float] = []
     timeouts = 0
+    over_budget = 0  # steps whose stage 2 ran out of its time budget
     regressed: list[np.ndarray] = []  # Direct3D: regressed minus true translation (cells)
     per_manual: list[dict[str, Any]] = []
     bar = tqdm(
@@ -396,6 +401,7 @@ def evaluate(
             undetermined_where: list[str] = []
             undecidable_where: list[str] = []
             camera_off: dict[str, Any] = {}  # estimated cameras off by > CAMERA_OFF_PX, or none
+            over_budget_where: list[str] = []
             for b in run.builds:
                 truth = answers.build(b.key)
                 scale = _diag([(comps[i.component], i.yaw, i.t) for i in truth.instances])
@@ -403,6 +409,8 @@ def evaluate(
                 for s in b.steps:
                     assert s.truth is not None
                     scorer.seconds.append(s.seconds)
+                    if any(p.extra.get("over_budget") for p in s.predictions):
+                        over_budget_where.append(f"{b.name} step {s.index}")
                     gt = [(i.component, i.yaw, i.t) for i in s.truth.placed()]
                     supported = [v.attach != "unsupported" for v in s.truth.answers.views]
                     preds = _in_truth_frame(run, b, s)
@@ -437,6 +445,7 @@ def evaluate(
                         elif err is not None and err[1] > CAMERA_OFF_PX:
                             camera_off[where] = [round(err[0], 2), round(err[1], 2)]
             mtc.append(wrong / max(len(man.all_steps()), 1))
+            over_budget += len(over_budget_where)
             n, right, sup, sup_right = (
                 now - then
                 for now, then in zip(
@@ -459,6 +468,7 @@ def evaluate(
                     "errors": kinds,
                     "wrong": wrong_where,
                     "undetermined": undetermined_where,
+                    "over_budget": over_budget_where,
                     **(
                         {"camera_off": camera_off, "camera_undecidable": undecidable_where}
                         if camera == "estimated"
@@ -541,6 +551,7 @@ def evaluate(
         "submodule_component_cd": cd(scorer.sub_cd),
         "cd_points": cd_points,
         "n_timeouts": timeouts,
+        "over_budget_steps": over_budget,
         "timeout_share": timeouts / max(scorer.components, 1),
         "n_unsupported": scorer.components - scorer.supported,
         "supported_component_acc": scorer.supported_correct / scorer.supported
@@ -818,6 +829,12 @@ def format_table(rows: list[dict[str, Any]]) -> str:
                 )
             elif r.get("repair") is False:
                 lines.append(f"{'  repair':14s} off (--no-repair)")
+    for r in rows:
+        if r.get("over_budget_steps"):
+            lines.append(
+                f"{'  budget':14s} {r['over_budget_steps']} of {r['n_steps']} steps ran out of "
+                "stage 2's time budget (their first solution kept)"
+            )
     for r in rows:
         if r["predictor"] in ("abys", "oracle-abys") or r.get("n_timeouts"):
             lines.append(

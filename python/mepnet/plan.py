@@ -262,7 +262,7 @@ POOR = 0.5
 MAX_HYPOTHESES = 4
 #: No further camera hypothesis is predicted with once a step's predictions took this long
 #: (seconds; each prediction is bounded by stage 2's own budget).
-HYPOTHESES_BUDGET_S = 20.0
+HYPOTHESES_BUDGET_S = 60.0
 #: A first step is predicted again when fitting the camera to its predicted shape moved it
 #: more than this (pixels, RMS over the shape).
 REPREDICT_PX = 0.5

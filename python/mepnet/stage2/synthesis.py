@@ -291,8 +291,10 @@ def synthesize(
 
 
 #: Seconds one step's synthesis may take before it stops revisiting decisions
-#: (:func:`synthesize`); the median step takes well under a second.
-STEP_BUDGET_S = 10.0
+#: (:func:`synthesize`): the median step takes well under a second, the slowest of our own
+#: pictures about 18 s on a busy 2-core machine (10 s cut one of them short); a wrong camera
+#: hypothesis on another renderer's picture took 10-30 minutes without it.
+STEP_BUDGET_S = 30.0
 #: A placement search's least time limit once the step's budget is spent.
 MIN_SEARCH_S = 0.25
 
