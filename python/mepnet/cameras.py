@@ -754,7 +754,10 @@ class BuildCameras:
         # to the whole predicted step and predicts again. The largest's best fit first, then
         # every other fit of it and of the next largest, best first
         by_size = sorted(entries, key=lambda e: -len(np.asarray(components[e.component].voxels)))
-        parts = list({e.component: e for e in by_size}.values())[:FIRST_PARTS]
+        first_of: dict[ComponentRef, Any] = {}  # one entry per component (its first colour)
+        for e in by_size:
+            first_of.setdefault(e.component, e)
+        parts = list(first_of.values())[:FIRST_PARTS]
 
         def fits_of(e: Any) -> list[_bg.CameraFit]:
             found = [f for f in self._search_inside(_alone(components, e), pic) if _part_ok(f)]
