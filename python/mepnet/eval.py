@@ -44,8 +44,8 @@ Metrics (paper §5.1), written as JSON with the keys of DESIGN §8:
   and as a share of the components (the paper's TLE).
 - ``over_budget_steps``: steps whose stage 2 ran out of its time budget (the greedy's first
   solution kept, nothing revisited: ``mepnet.stage2.synthesis.STEP_BUDGET_S``), with where
-  they are per manual (``over_budget``). The budget is wall-clock: on a slower or busier
-  machine more steps may hit it; a figure with none is unaffected by it.
+  they are per manual (``over_budget``). The budget is CPU time, so other jobs on the machine
+  do not change it, but a slower CPU may hit it more often; a figure with none is unaffected.
 - ``submodule_component_acc`` / ``submodule_component_cd``: the same, over submodule components.
 """
 

@@ -266,12 +266,12 @@ def synthesize(
     ``abys_ranked``'s ``wide_ground``), and that solution is kept when it explains the picture
     better by :data:`WIDE_MARGIN`.
 
-    The step's budget: once it is spent, no decision is revisited and the ground is not searched
+    The step's budget (CPU seconds): once it is spent, no decision is revisited and the ground is not searched
     again; the greedy solution under way is finished, each of its remaining placement searches
     limited to what is left of the budget but at least :data:`MIN_SEARCH_S` (a step whose
     pictures match nothing -- a wrong camera -- would otherwise search for many minutes). The
     predictions of a step that ran out of budget say so (``extra["over_budget"]``)."""
-    deadline = time.perf_counter() + (STEP_BUDGET_S if budget_s is None else budget_s)
+    deadline = _clock() + (STEP_BUDGET_S if budget_s is None else budget_s)
     if not COLOUR_WEIGHT:
         picture = None
     elif picture is None:
@@ -281,20 +281,30 @@ def synthesize(
     # a build's first step: every part stands on the ground, wherever the picture shows it
     first = len(ctx.base) == 0
     preds, score = _solve(ctx, types, time_limit_s, picture, tone, first, deadline)
-    if score < WIDE_BELOW and not first and time.perf_counter() < deadline:
+    if score < WIDE_BELOW and not first and _clock() < deadline:
         wide, wide_score = _solve(ctx, types, time_limit_s, picture, tone, True, deadline)
         if wide_score > score + WIDE_MARGIN:
             preds = wide
-    if time.perf_counter() >= deadline:
+    if _clock() >= deadline:
         preds = [dataclasses.replace(p, extra={**p.extra, "over_budget": True}) for p in preds]
     return preds
 
 
-#: Seconds one step's synthesis may take before it stops revisiting decisions
-#: (:func:`synthesize`): the median step takes well under a second, the slowest of our own
-#: pictures about 18 s on a busy 2-core machine (10 s cut one of them short); a wrong camera
-#: hypothesis on another renderer's picture took 10-30 minutes without it.
+#: CPU seconds (:func:`_clock`) one step's synthesis may take before it stops revisiting
+#: decisions (:func:`synthesize`): the median step takes well under one, the slowest of our
+#: own pictures about 18; a wrong camera hypothesis on another renderer's picture took 10-30
+#: minutes without it.
 STEP_BUDGET_S = 30.0
+
+
+def _clock() -> float:
+    """The budget's clock: this process's CPU seconds (every thread's), so that how much a step
+    may do does not depend on what else the machine runs (wall-clock budgets cut 12 steps of
+    one evaluation short with three evaluations sharing two cores). Each placement search's own
+    limit is wall-clock (``abys_ranked``); what is left of the budget is handed to it as that."""
+    return time.process_time()
+
+
 #: A placement search's least time limit once the step's budget is spent.
 MIN_SEARCH_S = 0.25
 
@@ -318,7 +328,7 @@ def _solve(
 ) -> tuple[list[Prediction], float]:
     """:func:`synthesize`'s greedy with its revisits, the ground searched beside the base or
     (``wide``) wherever the picture changed, no revisit begun after ``deadline``
-    (``time.perf_counter``); returns the predictions and how well they explain the picture
+    (:func:`_clock`); returns the predictions and how well they explain the picture
     (:func:`_explained`)."""
     w, h = ctx.image_size
     mask = np.zeros((h, w), bool)
@@ -332,7 +342,7 @@ def _solve(
     # placed (the bottom brick of a stack, hidden by the top one) is never among the first
     # choices, and the top one is not valid before it
     for later in list(taken[1:]) if LATER_FIRST else []:
-        if score >= WELL_EXPLAINED or time.perf_counter() >= deadline:
+        if score >= WELL_EXPLAINED or _clock() >= deadline:
             break
         alt_preds, alt_taken, alt_options = _greedy(*args, [later], wide, memo, deadline)
         alt_score = _explained(ctx, alt_preds, mask, picture, tone)
@@ -342,7 +352,7 @@ def _solve(
     level = 0
     while score < WELL_EXPLAINED and level < len(taken):
         for alt in options[level][1:FIRST_CHOICES]:
-            if alt == taken[level] or time.perf_counter() >= deadline:
+            if alt == taken[level] or _clock() >= deadline:
                 continue
             alt_preds, alt_taken, alt_options = _greedy(
                 *args, [*taken[:level], alt], wide, memo, deadline
@@ -442,7 +452,7 @@ def _greedy(
             m = t.mask & unexplained
             if not m.any():
                 continue
-            limit = min(time_limit_s, max(deadline - time.perf_counter(), MIN_SEARCH_S))
+            limit = min(time_limit_s, max(deadline - _clock(), MIN_SEARCH_S))
             ranked, timed_out = _bg.abys_ranked(
                 asm, cam, w, h, t.component, m, 4 * RANKED, limit, wide_ground=wide
             )
