@@ -595,7 +595,9 @@ def test_a_first_step_of_three_parts_finds_the_view_of_its_largest(tmp_path: Pat
     assert abs(got.scale / cam.scale - 1.0) < 0.03, got
 
 
-def test_a_first_step_tries_its_other_parts_when_the_largest_misleads(tmp_path: Path):
+def test_a_first_step_tries_its_other_parts_when_the_largest_misleads(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+):
     """A first step adding a 1x3 brick and a round 2x2 brick (equal volume: the brick, listed
     first, is searched first). The 1x3 brick fits a 12.5-degree view as well as the page's 25,
     and the step predicted from it explains a fifth of the picture: the step failed (U20 manual
@@ -636,6 +638,13 @@ def test_a_first_step_tries_its_other_parts_when_the_largest_misleads(tmp_path: 
     assert _turned_error(est.camera, cam) < 1.0, est.camera
     assert abs(est.camera.scale / cam.scale - 1.0) < 0.02, est.camera
     assert all(p.placed for p in preds)
+    # with no time for a second hypothesis the misleading one is all there is: the step fails
+    import mepnet.plan
+
+    monkeypatch.setattr(mepnet.plan, "HYPOTHESES_BUDGET_S", 0.0)
+    cameras = BuildCameras((256, 256))
+    _, _, est = _estimated_camera_step(cameras, predict, step, _bg.Assembly(), comps, False)
+    assert est.failure is not None
 
 
 def test_the_scale_sweep_keeps_a_hidden_dark_base_on_the_picture(tmp_path: Path):

@@ -261,7 +261,7 @@ POOR = 0.5
 #: Camera hypotheses predicted with at most, per step.
 MAX_HYPOTHESES = 4
 #: No further camera hypothesis is predicted with once a step's predictions took this long
-#: (seconds; each prediction is bounded by stage 2's own budget).
+#: (CPU seconds, as stage 2's own budget, which bounds each prediction).
 HYPOTHESES_BUDGET_S = 60.0
 #: A first step is predicted again when fitting the camera to its predicted shape moved it
 #: more than this (pixels, RMS over the shape).
@@ -302,14 +302,11 @@ def _estimated_camera_step(
     cannot be estimated fails every component of the step with the reason."""
     seconds = 0.0
     spent = 0.0  # camera estimation: every hypothesis made and checked
+    cpu = 0.0  # CPU seconds of the predictions (:data:`HYPOTHESES_BUDGET_S`)
     best: tuple[float, list[Prediction], CameraEstimate, Any, _bg.Assembly, bool] | None = None
     for tried, est in enumerate(cameras.hypotheses(page_step, base, components, teacher_forced)):
         spent += est.seconds
-        if (
-            est.failure is not None
-            or tried == MAX_HYPOTHESES
-            or (best is not None and seconds >= HYPOTHESES_BUDGET_S)
-        ):
+        if est.failure is not None or tried == MAX_HYPOTHESES:
             if best is None:
                 est = dataclasses.replace(est, seconds=spent)
                 cameras.accept(page_step, est, None)
@@ -323,8 +320,10 @@ def _estimated_camera_step(
         unverified = est.fit is None  # a first step's prior view: judged by its check
         explained = False
         for again in (False, True):
+            cpu0 = time.process_time()
             preds, s = predict(dataclasses.replace(page_step, camera=est.step_camera()))
             seconds += s
+            cpu += time.process_time() - cpu0
             t0 = time.perf_counter()
             shape = _trial_shape(base, preds, components, page_step)
             fit = cameras.check(page_step, shape, est)
@@ -348,7 +347,7 @@ def _estimated_camera_step(
             if again or fit is None or fit.moved_px <= REPREDICT_PX:
                 break
             est = dataclasses.replace(est, camera=fit.camera, fit=fit.agree)
-        if explained:
+        if explained or cpu >= HYPOTHESES_BUDGET_S:
             break
     assert best is not None
     _, preds, est, fit, shape, unverified = best
