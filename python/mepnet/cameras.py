@@ -728,20 +728,17 @@ class BuildCameras:
     ) -> Iterator[CameraEstimate]:
         """Cameras for a build's first step (nothing built yet), by the frame convention (see
         the module docs), most likely first, each made when it is asked for."""
-        clock = _Clock()
         pic = self.picture(step)
         if pic.blank:
-            yield _failed("the picture is blank", clock)
+            yield _failed("the picture is blank")
             return
         entries = [c for c in step.components if c.component in components]
         if not entries:
-            yield _failed("the step adds nothing mepnet can place", clock)
+            yield _failed("the step adds nothing mepnet can place")
             return
 
         def first(cam: _bg.Camera, fit_score: float | None = None) -> CameraEstimate:
-            return CameraEstimate(
-                cam, "estimated", fit_score, "first step", seconds=clock.lap(), frame="convention"
-            )
+            return CameraEstimate(cam, "estimated", fit_score, "first step", frame="convention")
 
         if len(entries) == 1 and entries[0].count == 1:
             fit = self._search_full(_alone(components, entries[0]), pic, n=4)
@@ -811,10 +808,9 @@ class BuildCameras:
         asked for (see the module docs); a single failed estimate when none fits.
         ``previous``: the previous step and the camera it kept; ``same_frame``: whether that
         camera is in the frame of ``base``; ``verified``: whether it was fitted to ``base``."""
-        clock = _Clock()
         pic = self.picture(step)
         if pic.blank:
-            yield _failed("the picture is blank", clock)
+            yield _failed("the picture is blank")
             return
         anchor: _bg.Camera | None = None
         if previous is not None and previous[1].camera is not None:
@@ -845,7 +841,7 @@ class BuildCameras:
                 if ok(f) and all(_camera_distance(f.camera, c, pic) > 1.0 for c in yielded):
                     yielded.append(f.camera)
                     how = f"{how} (weak)" if weak else how
-                    yield CameraEstimate(f.camera, "estimated", f.agree, how, seconds=clock.lap())
+                    yield CameraEstimate(f.camera, "estimated", f.agree, how)
 
         first: list[tuple[_bg.CameraFit, str]] = []
         if anchor is not None:
@@ -892,10 +888,10 @@ class BuildCameras:
             reg = self._register(self.picture(last_step), last_cam, pic)
             if reg is not None and reg[0] >= REGISTER_AGREE:
                 yielded.append(reg[1])
-                yield CameraEstimate(reg[1], "estimated", reg[0], "registered", seconds=clock.lap())
+                yield CameraEstimate(reg[1], "estimated", reg[0], "registered")
         if not yielded:
             best = more[0][0] if more else None
-            yield _failed(_why("the shape built so far does not fit the picture", best), clock)
+            yield _failed(_why("the shape built so far does not fit the picture", best))
 
     def _joint(
         self,
@@ -1239,8 +1235,9 @@ def _why(what: str, fit: _bg.CameraFit | None) -> str:
 
 def _timed(estimates: Iterator[CameraEstimate]) -> Iterator[CameraEstimate]:
     """``estimates`` with each one's ``seconds`` the time its own making took: the generator
-    runs only while asked for the next (a lap clock inside it also counted the time the plan
-    loop spent predicting the step with the previous one)."""
+    runs only while asked for the next (a clock inside it would also count the time the plan
+    loop spends predicting the step with the previous one). The only place estimates are
+    timed."""
     while True:
         t0 = time.perf_counter()
         est = next(estimates, None)
@@ -1249,26 +1246,13 @@ def _timed(estimates: Iterator[CameraEstimate]) -> Iterator[CameraEstimate]:
         yield dataclasses.replace(est, seconds=time.perf_counter() - t0)
 
 
-class _Clock:
-    """Seconds since the last lap."""
-
-    def __init__(self) -> None:
-        self.t = time.perf_counter()
-
-    def lap(self) -> float:
-        now = time.perf_counter()
-        out, self.t = now - self.t, now
-        return out
-
-
-def _failed(why: str, clock: _Clock) -> CameraEstimate:
+def _failed(why: str) -> CameraEstimate:
     return CameraEstimate(
         None,
         "estimated",
         None,
         "failed",
         failure=f"camera could not be estimated: {why}",
-        seconds=clock.lap(),
     )
 
 

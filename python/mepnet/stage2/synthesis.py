@@ -266,8 +266,8 @@ def synthesize(
     ``abys_ranked``'s ``wide_ground``), and that solution is kept when it explains the picture
     better by :data:`WIDE_MARGIN`.
 
-    The step's budget (CPU seconds): once it is spent, no decision is revisited and the ground is not searched
-    again; the greedy solution under way is finished, each of its remaining placement searches
+    The step's budget (CPU seconds): once it is spent, no decision is revisited and the ground
+    is not searched again; the greedy under way is finished, each of its remaining placement searches
     limited to what is left of the budget but at least :data:`MIN_SEARCH_S` (a step whose
     pictures match nothing -- a wrong camera -- would otherwise search for many minutes). The
     predictions of a step that ran out of budget say so (``extra["over_budget"]``)."""
@@ -350,9 +350,11 @@ def _solve(
             preds, score, taken, options = alt_preds, alt_score, alt_taken, alt_options
     # each decision in turn: the next best choices there, the rest greedy again
     level = 0
-    while score < WELL_EXPLAINED and level < len(taken):
+    while score < WELL_EXPLAINED and level < len(taken) and _clock() < deadline:
         for alt in options[level][1:FIRST_CHOICES]:
-            if alt == taken[level] or _clock() >= deadline:
+            if _clock() >= deadline:
+                break
+            if alt == taken[level]:
                 continue
             alt_preds, alt_taken, alt_options = _greedy(
                 *args, [*taken[:level], alt], wide, memo, deadline
