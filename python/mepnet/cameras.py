@@ -130,6 +130,8 @@ JOINT_PARTS, JOINT_PAIR_SECOND = 2, 2
 JOINT_STRONG = 0.85
 #: Pixels of the known shape (and of the page around it) a fit samples at most.
 FIT_SAMPLES = 3000
+#: Take the outer half of wide outlines off the drawing before fitting (:func:`outline_stripped`).
+STRIP_OUTLINES = True
 #: The fit's template outlines, as a share of the renderer's own (0: faces only).
 FIT_LINES = 1.0
 #: Gauss-Newton iterations per fit level.
@@ -137,6 +139,11 @@ FIT_ITERATIONS = 5
 #: Scale sweep: weight of a pixel's squared colour difference against +1 for lying on the
 #: drawing (a brown brick is not where the picture is blue, however well it fits inside).
 SWEEP_COLOUR = 4.0
+#: Scale sweep by colour kernel: each reference pixel scores SWEEP_MATCH times its colour's
+#: likeness to the picture's there (Gaussian, SWEEP_SIGMA), less SWEEP_ON on the drawing and 2 off
+#: it: a pixel hidden by a new part costs a little, not its squared colour difference.
+SWEEP_KERNEL = True
+SWEEP_MATCH, SWEEP_ON, SWEEP_SIGMA = 2.0, 0.25, 0.2
 #: Scale sweep: the zoom a step usually changes by (ratio to the previous scale): the best
 #: start within it is tried first.
 SWEEP_PRIOR = (0.55, 1.8)
@@ -228,6 +235,7 @@ class _Picture:
     _edges: tuple[float, float] | None = None
     _box: tuple[np.ndarray, tuple[float, float, float, float] | None] | None = None
     _spectra: tuple[np.ndarray, np.ndarray] | None = None
+    _kernel: tuple[bytes, np.ndarray, np.ndarray] | None = None
 
     @property
     def blank(self) -> bool:
@@ -263,11 +271,109 @@ class _Picture:
             )
         return self._spectra
 
+    def kernel_spectra(self, centres: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The kernel sweep's view of the reduced picture: the weight per pixel (-:data:`SWEEP_ON`
+        on the drawing, -2 off it) and the picture's colour features (:func:`_colour_features`
+        for ``centres``), as spectra at twice its size, beyond the picture page."""
+        key = centres.tobytes()
+        if self._kernel is None or self._kernel[0] != key:
+            h, w = self.small.shape
+            off = self.small < 0.5
+            page = np.median(self.small_rgb[off], axis=0) if off.any() else np.ones(3)
+            drawing = np.zeros((2 * h, 2 * w), dtype=np.float32)
+            drawing[:h, :w] = self.small
+            weight = -SWEEP_ON * drawing - 2.0 * (1.0 - drawing)
+            feats = np.empty((2 * h, 2 * w, len(centres)), dtype=np.float32)
+            feats[...] = _colour_features(page, centres)
+            feats[:h, :w] = _colour_features(self.small_rgb, centres)
+            spectra = np.stack([np.fft.rfft2(feats[..., k]) for k in range(len(centres))])
+            self._kernel = (key, np.fft.rfft2(weight), spectra)
+        return self._kernel[1], self._kernel[2]
+
     def edge_view(self) -> tuple[float, float]:
         """The orientation its edges suggest: (elevation, azimuth in [180, 270))."""
         if self._edges is None:
             self._edges = edge_orientation(self.rgb)
         return self._edges
+
+
+def _colour_centres(colours: np.ndarray, k: int = 6, iterations: int = 6) -> np.ndarray:
+    """Up to ``k`` colours that stand for ``colours`` (N, 3) in [0, 1] (k-means from spread
+    starts)."""
+    if len(colours) == 0:
+        return np.ones((1, 3), dtype=np.float32)
+    pts = colours[:: max(1, len(colours) // 1000)].astype(np.float32)
+    lum = pts.sum(axis=1)
+    centres = pts[np.argsort(lum)[np.linspace(0, len(pts) - 1, k).astype(int)]]
+    for _ in range(iterations):
+        near = (pts @ centres.T * -2.0 + (centres**2).sum(axis=1)).argmin(axis=1)
+        counts = np.bincount(near, minlength=k)[:, None]
+        sums = np.stack([np.bincount(near, pts[:, c], minlength=k) for c in range(3)], axis=1)
+        centres = np.where(counts > 0, sums / np.maximum(counts, 1), centres).astype(np.float32)
+    keep = [0]
+    for j in range(1, k):
+        if all(np.abs(centres[j] - centres[i]).max() > 0.04 for i in keep):
+            keep.append(j)
+    return centres[keep].astype(np.float32)
+
+
+def _colour_features(colours: np.ndarray, centres: np.ndarray) -> np.ndarray:
+    """Soft membership (..., K) of each colour (..., 3) in each centre's colour."""
+    c = np.asarray(colours, dtype=np.float32)
+    d2 = (c**2).sum(axis=-1)[..., None] - 2.0 * (c @ centres.T) + (centres**2).sum(axis=1)
+    return np.exp(np.minimum(d2, 50.0) * np.float32(-0.5 / SWEEP_SIGMA**2)).astype(np.float32)
+
+
+def _rings(fg: np.ndarray, n: int) -> list[np.ndarray]:
+    """The drawing's outermost ``n`` rings of pixels (4-neighbour erosion), outside first."""
+    rings, m = [], fg
+    for _ in range(n):
+        e = m.copy()
+        e[1:] &= m[:-1]
+        e[:-1] &= m[1:]
+        e[:, 1:] &= m[:, :-1]
+        e[:, :-1] &= m[:, 1:]
+        rings.append(m & ~e)
+        m = e
+    return rings
+
+
+def outline_stripped(rgb: np.ndarray, fg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The picture with the outer half of a wide outline taken off its silhouette.
+
+    Some tools draw outlines wider than a pixel centred on the parts' edges: the drawing's
+    silhouette then grows by half the line, and a camera fitted to it by as much (the fit's
+    template draws its lines inside the parts, as mepnet's renderer does). Recognised by its
+    rings: past an anti-aliased halo, an outermost ring of one dark colour (ink on the page),
+    followed by rings darker than the drawing's inside (ink over the parts); the band is the
+    first ring and the darker ones, and its outer half (with the halo) becomes page. A one-
+    pixel outline (mepnet's, LeoCAD's) is left alone."""
+    rings = [r for r in _rings(fg, 8) if r.sum() >= 16]
+    if len(rings) < 6:
+        return rgb, fg  # too thin to tell a band from the parts
+    pix = rgb.astype(np.float32)
+    page = np.median(pix[~fg], axis=0) if (~fg).any() else np.full(3, 255.0)
+    lum_page = float(page.mean())
+    med = [np.median(pix[r], axis=0) for r in rings]
+    lum = [float(m.mean()) / lum_page for m in med]
+    start = 1 if lum[0] > 0.6 else 0  # a halo: pixels the page mostly covers
+    ring = pix[rings[start]]
+    spread = float(np.median(np.abs(ring - med[start]).max(axis=1))) / lum_page
+    if spread > 0.06 or lum[start] > 0.5:
+        return rgb, fg  # no outline of one colour around the drawing
+    inside = float(np.median(lum[start + 4 :] or lum[-1:]))
+    width = 1
+    while width < min(4, len(rings) - start - 1) and lum[start + width] < 0.8 * inside:
+        width += 1
+    strip = width // 2
+    if strip == 0:
+        return rgb, fg
+    gone = np.zeros_like(fg)
+    for r in rings[: start + strip]:
+        gone |= r
+    out = rgb.copy()
+    out[gone] = np.clip(np.round(page), 0, 255).astype(rgb.dtype)
+    return np.ascontiguousarray(out), fg & ~gone
 
 
 def _edge_grid() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -432,6 +538,8 @@ class BuildCameras:
         if pic is None:
             rgb = np.ascontiguousarray(step.image())
             fg, _ = _bg.foreground_mask(rgb, FG_THRESHOLD, FG_MIN_AREA)
+            if STRIP_OUTLINES:
+                rgb, fg = outline_stripped(rgb, fg)
             pic = _Picture(
                 rgb, fg, _reduce(fg, WORK_PX), _reduce(rgb, WORK_PX) / 255.0, _bg.FitPicture(rgb)
             )
@@ -653,7 +761,13 @@ class BuildCameras:
         :data:`SWEEP_PRIOR` first, then the best overall."""
         h, w = pic.small.shape
         pad = (2 * h, 2 * w)
-        f_weight, f_colour = pic.sweep_spectra()
+        if SWEEP_KERNEL:
+            centres = _colour_centres(rgb_ref[sil_ref])
+            f_weight, f_colour = pic.kernel_spectra(centres)
+            # the reference's colour features, resampled with its silhouette at each scale
+            rgb_ref = _colour_features(rgb_ref, centres)
+        else:
+            f_weight, f_colour = pic.sweep_spectra()
 
         def place(scales: list[float]) -> list[tuple[float, _bg.Camera]]:
             # per pixel of the reference at offset tau: W(x+tau) - sum_c (P_c(x+tau) - T_c(x))^2
@@ -664,11 +778,19 @@ class BuildCameras:
                 if not sil.any():
                     continue
                 spec = f_weight * np.conj(np.fft.rfft2(sil, pad))
-                for ch in range(3):
-                    spec += (
-                        2.0 * SWEEP_COLOUR * f_colour[ch] * np.conj(np.fft.rfft2(tpl[..., ch], pad))
-                    )
-                corr = np.fft.irfft2(spec, pad) - SWEEP_COLOUR * float((tpl**2).sum())
+                if SWEEP_KERNEL:
+                    for k in range(len(centres)):
+                        spec += SWEEP_MATCH * f_colour[k] * np.conj(np.fft.rfft2(tpl[..., k], pad))
+                    corr = np.fft.irfft2(spec, pad)
+                else:
+                    for ch in range(3):
+                        spec += (
+                            2.0
+                            * SWEEP_COLOUR
+                            * f_colour[ch]
+                            * np.conj(np.fft.rfft2(tpl[..., ch], pad))
+                        )
+                    corr = np.fft.irfft2(spec, pad) - SWEEP_COLOUR * float((tpl**2).sum())
                 cx, cy = _centred(ref, c.scale)
                 for _ in range(2):  # the two best offsets, apart
                     dy, dx = np.unravel_index(int(np.argmax(corr)), corr.shape)
