@@ -874,3 +874,69 @@ def test_wide_outlines_are_taken_off_the_silhouette(tmp_path: Path):
     assert (fg_thick & ~truth).sum() > 1.5 * (truth & ~np.roll(truth, 1, axis=1)).sum()
     _, stripped = outline_stripped(thick, fg_thick)
     assert (stripped ^ truth).sum() < 0.2 * (fg_thick ^ truth).sum()
+
+
+def test_a_style_whose_checks_agree_less_explains_its_steps_sooner(tmp_path: Path):
+    """Another tool's drawing agrees with mepnet's at most so well (LeoCAD's: median 0.80 with
+    the true camera and shape), so the fixed 80% called four in ten of its later steps
+    unexplained: every camera hypothesis was predicted with (four predictions a step, and more
+    chances to keep a wrong one). Once the manual's checks show its style, a step is explained
+    at their median less a margin; a style like mepnet's own keeps the fixed threshold."""
+    from types import SimpleNamespace
+
+    from mepnet.cameras import CameraEstimate, PageStyle
+    from mepnet.manual.page import ComponentRef, Step, StepComponent
+    from mepnet.plan import EXPLAINED_AGREE, STYLE_MARGIN, _estimated_camera_step
+
+    style = PageStyle()
+    assert style.explained(EXPLAINED_AGREE, STYLE_MARGIN) == EXPLAINED_AGREE
+    style.agrees += [0.81, 0.79]
+    assert style.explained(EXPLAINED_AGREE, STYLE_MARGIN) == pytest.approx(0.75)
+    assert PageStyle([1.0, 0.99, 1.0]).explained(EXPLAINED_AGREE, STYLE_MARGIN) == EXPLAINED_AGREE
+
+    ref = ComponentRef("3001", None)
+    comps = {ref: _bg.Component.primitive(ref.part)}
+    base = _bg.Assembly()
+    for x in (-8, 0, 8):
+        base.add(comps[ref], 0, (x, 3, 0), 4)
+    step = Step(2, tmp_path / "step_2.png", None, [StepComponent(ref, 1, 4)], (256, 256))
+    cam = _bg.Camera(30.0, 40.0, 0.0, 0.02, (0.0, 0.0))
+
+    class Cameras:  # two hypotheses; every check of a right view agrees 78%
+        def __init__(self, style: PageStyle):
+            self.style, self.asked = style, 0
+
+        def hypotheses(self, *args: object):
+            for how in ("carried", "joint"):
+                self.asked += 1
+                yield CameraEstimate(cam, "estimated", 0.9, how)
+
+        def check(self, *args: object):
+            return SimpleNamespace(iou=0.98, agree=0.78, moved_px=0.0)
+
+        def accept(self, *args: object) -> None:
+            pass
+
+    def predict(page: object) -> tuple[list[object], float]:
+        return [], 0.0
+
+    for known, asked in ((PageStyle(), 2), (style, 1)):
+        cameras = Cameras(known)
+        _estimated_camera_step(cameras, predict, step, base, comps, False)  # type: ignore[arg-type]
+        assert cameras.asked == asked
+
+
+def test_a_check_that_explains_the_silhouette_tells_the_style():
+    """Only checks that overlap the drawing well (and pass) record the style's agreement."""
+    from types import SimpleNamespace
+
+    from mepnet.cameras import STYLE_IOU, CameraEstimate
+
+    cams = BuildCameras((256, 256))
+    cam = _bg.Camera(30.0, 40.0, 0.0, 0.02, (0.0, 0.0))
+    est = CameraEstimate(cam, "estimated", 0.9, "carried")
+    step = object()
+    cams.accept(step, est, SimpleNamespace(iou=STYLE_IOU + 0.02, agree=0.8, camera=cam))  # type: ignore[arg-type]
+    cams.accept(step, est, SimpleNamespace(iou=STYLE_IOU - 0.05, agree=0.7, camera=cam))  # type: ignore[arg-type]
+    cams.accept(step, est, None)  # type: ignore[arg-type]
+    assert cams.style.agrees == [0.8]

@@ -130,6 +130,9 @@ JOINT_PARTS, JOINT_PAIR_SECOND = 2, 2
 JOINT_STRONG = 0.85
 #: Pixels of the known shape (and of the page around it) a fit samples at most.
 FIT_SAMPLES = 3000
+#: A check that overlaps the drawing this well tells the manual's style (:class:`PageStyle`) by
+#: its colour agreement; the last this many such checks count.
+STYLE_IOU, STYLE_RECENT = 0.95, 8
 #: Take the outer half of wide outlines off the drawing before fitting (:func:`outline_stripped`).
 STRIP_OUTLINES = True
 #: The fit's template outlines, as a share of the renderer's own (0: faces only).
@@ -513,6 +516,24 @@ def frame_motions(shape: _bg.Assembly, base: _bg.Assembly) -> list[Motion]:
     return [m for m in candidate_motions(mine, theirs) if matches(mine, theirs, m) == len(theirs)]
 
 
+@dataclass
+class PageStyle:
+    """How far a manual's drawing style lets a right camera and shape agree with mepnet's
+    drawing of them: the colour agreement of the checks that explained a step's silhouette
+    (IoU >= :data:`STYLE_IOU`), so far. mepnet's own pictures agree all but fully; another
+    tool's shading, lines and studs cap it (LeoCAD's: median 0.80 with the true camera and
+    shape), and a threshold made for the former would call no step of the latter explained."""
+
+    agrees: list[float] = dataclasses.field(default_factory=list)
+
+    def explained(self, agree: float, margin: float) -> float:
+        """The agreement that explains a step: ``agree``, or less in a style whose recent
+        checks (:data:`STYLE_RECENT`, at least two) agreed less: their median less ``margin``."""
+        if len(self.agrees) < 2:
+            return agree
+        return min(agree, float(np.median(self.agrees[-STYLE_RECENT:])) - margin)
+
+
 class BuildCameras:
     """The camera estimator of one build, called step after step by the plan loop
     (:func:`mepnet.plan.run_build`): :meth:`hypotheses` before a step is predicted,
@@ -520,8 +541,10 @@ class BuildCameras:
     :meth:`accept` for the camera the step keeps (the next step's anchor). Keeps the pictures
     it read last (a step's picture is the next step's anchor)."""
 
-    def __init__(self, image_size: tuple[int, int]):
+    def __init__(self, image_size: tuple[int, int], style: PageStyle | None = None):
         self.image_size = image_size
+        #: how well the manual's drawings can agree with mepnet's (shared by its builds)
+        self.style = PageStyle() if style is None else style
         self._pictures: dict[str, _Picture] = {}
         #: the previous step, the camera it kept, whether a fit verified that camera with the
         #: shape after the step (then it is the anchor as it stands), and that shape
@@ -611,6 +634,8 @@ class BuildCameras:
         if est.source == "given":
             self._previous = (step, est, True, shape)
         elif fit is not None and _full_ok(fit):
+            if fit.iou >= STYLE_IOU:
+                self.style.agrees.append(fit.agree)
             kept = dataclasses.replace(est, camera=fit.camera, fit=fit.agree)
             self._previous = (step, kept, True, shape)
         else:

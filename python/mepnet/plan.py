@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from mepnet import _brickgeom as _bg
-from mepnet.cameras import SMALL_BASE, BuildCameras, CameraEstimate
+from mepnet.cameras import SMALL_BASE, BuildCameras, CameraEstimate, PageStyle
 from mepnet.consistency import Placement, Revision, StepCheck, View, check_step
 from mepnet.consistency import build as build_placements
 from mepnet.consistency import repair as repair_placements
@@ -130,8 +130,10 @@ def run_build(
     teacher_forced: bool = False,
     on_step: Callable[[], None] | None = None,
     repair: bool = True,
+    style: PageStyle | None = None,
 ) -> BuildRun:
-    """Run every step of one build (see :func:`run_manual`)."""
+    """Run every step of one build (see :func:`run_manual`); ``style``: the manual's drawing
+    style as the builds before it saw it."""
     build = manual.main if key is None else manual.submodules[key]
     answers = manual.answers.build(key) if manual.answers is not None else None
     if teacher_forced and answers is None:
@@ -140,7 +142,7 @@ def run_build(
         raise ManualFormatError(f"{manual.path}: teacher forcing needs the manual's answers")
     run = BuildRun(key, build)
     base = _bg.Assembly()
-    cameras = BuildCameras(manual.image_size)
+    cameras = BuildCameras(manual.image_size, style)
     earlier: list[EarlierStep] = []  # the page steps so far, with the cameras predicted with
     placements: list[Placement] = []  # the shape built so far, in order (autoregressive)
     views: list[View] = []  # the pictures so far as the repair sees them
@@ -250,6 +252,9 @@ EXPLAINED_IOU, EXPLAINED_AGREE = 0.9, 0.8
 #: step's zoom with the tile beside the plate; the tile and the camera searched together
 #: explain all of it).
 EXPLAINED_SMALL_IOU, EXPLAINED_SMALL_AGREE = 0.95, 0.9
+#: In a style whose checks agree less than mepnet's own pictures (:class:`PageStyle`), a step
+#: is explained at their median agreement less this (over a small base: at their median).
+STYLE_MARGIN = 0.05
 #: A later hypothesis replaces the best so far only when its check scores this much more
 #: (near ties keep the order: the view the previous step was drawn from first).
 BETTER = 0.02
@@ -338,10 +343,13 @@ def _estimated_camera_step(
                 or (again and score >= best[0] - 0.02)
             ):
                 best = (score, preds, est, fit, shape, unverified)
+            style = cameras.style
             explained = fit is not None and (
-                fit.iou >= EXPLAINED_SMALL_IOU and fit.agree >= EXPLAINED_SMALL_AGREE
+                fit.iou >= EXPLAINED_SMALL_IOU
+                and fit.agree >= style.explained(EXPLAINED_SMALL_AGREE, 0.0)
                 if len(base) <= SMALL_BASE
-                else fit.iou >= EXPLAINED_IOU and fit.agree >= EXPLAINED_AGREE
+                else fit.iou >= EXPLAINED_IOU
+                and fit.agree >= style.explained(EXPLAINED_AGREE, STYLE_MARGIN)
             )
             # the camera fitted to the predicted step moved: predicted again with it
             if again or fit is None or fit.moved_px <= REPREDICT_PX:
@@ -390,8 +398,9 @@ def run_manual(
     else:
         components = manual.primitive_components()
     runs = []
+    style = PageStyle()
     for key, _ in manual.builds():
-        run = run_build(predictor, manual, key, components, teacher_forced, on_step, repair)
+        run = run_build(predictor, manual, key, components, teacher_forced, on_step, repair, style)
         runs.append(run)
         if key is not None and not teacher_forced:
             placed = run.placed()
