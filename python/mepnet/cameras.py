@@ -698,24 +698,43 @@ class BuildCameras:
         return _prefer_front([(f, "") for f in fits], lambda f: f.agree)[0][0]
 
     def _sweep(
-        self, shape: _bg.Assembly, pic: _Picture, cam: _bg.Camera, wide: bool = True
+        self,
+        shape: _bg.Assembly,
+        pic: _Picture,
+        cam: _bg.Camera,
+        wide: bool = True,
+        both: bool = False,
     ) -> list[_bg.Camera]:
         """Scale and translation for ``cam``'s orientation that put the shape where the picture
         shows it (:meth:`_match` of the shape rendered once). The cameras of the three best
-        distinct starts."""
-        return [c for _, c in self._sweep_scored(shape, pic, cam, wide)]
+        distinct starts; ``both``: then those the squared colour difference ranks best (a
+        new part much like the base in colour draws the colour kernel's starts onto it)."""
+        return [c for _, c in self._sweep_scored(shape, pic, cam, wide, both)]
 
     def _sweep_scored(
-        self, shape: _bg.Assembly, pic: _Picture, cam: _bg.Camera, wide: bool = True
+        self,
+        shape: _bg.Assembly,
+        pic: _Picture,
+        cam: _bg.Camera,
+        wide: bool = True,
+        both: bool = False,
+        kernel: bool | None = None,
     ) -> list[tuple[float, _bg.Camera]]:
-        """:meth:`_sweep` with each start's :meth:`_match` score."""
+        """:meth:`_sweep` with each start's :meth:`_match` score (each scoring's own);
+        ``kernel``: the scoring (:data:`SWEEP_KERNEL` by default)."""
         n = 2 * WORK_PX
         ref = _with(cam, scale=1.0, translation=(0.0, 0.0)).fitted(
             np.asarray(bounds_corners(shape), dtype=np.float64), 0.9
         )
         render = _bg.render(shape, ref, n, n)
         rgb = render.rgb.astype(np.float32) / 255.0
-        return self._match(render.ids >= 0, rgb, ref, pic, wide=wide)
+        out = self._match(render.ids >= 0, rgb, ref, pic, wide=wide, kernel=kernel)
+        if both and SWEEP_KERNEL and kernel is not False:
+            w = pic.small.shape[1]
+            for sc, c in self._match(render.ids >= 0, rgb, ref, pic, wide=wide, kernel=False):
+                if all(_start_distance(c, o, w) > 2.0 for _, o in out):
+                    out.append((sc, c))
+        return out
 
     def _register(
         self, prev_pic: _Picture, prev_cam: _bg.Camera, pic: _Picture
@@ -774,6 +793,7 @@ class BuildCameras:
         pic: _Picture,
         starts: int = 3,
         wide: bool = True,
+        kernel: bool | None = None,
     ) -> list[tuple[float, _bg.Camera]]:
         """Scale and translation, for the orientation of ``ref``, that put a reference (a
         silhouette and its colours as camera ``ref`` sees them) where the picture shows it: the
@@ -786,7 +806,8 @@ class BuildCameras:
         :data:`SWEEP_PRIOR` first, then the best overall."""
         h, w = pic.small.shape
         pad = (2 * h, 2 * w)
-        if SWEEP_KERNEL:
+        kernel = SWEEP_KERNEL if kernel is None else kernel
+        if kernel:
             centres = _colour_centres(rgb_ref[sil_ref])
             f_weight, f_colour = pic.kernel_spectra(centres)
             # the reference's colour features, resampled with its silhouette at each scale
@@ -803,7 +824,7 @@ class BuildCameras:
                 if not sil.any():
                     continue
                 spec = f_weight * np.conj(np.fft.rfft2(sil, pad))
-                if SWEEP_KERNEL:
+                if kernel:
                     for k in range(len(centres)):
                         spec += SWEEP_MATCH * f_colour[k] * np.conj(np.fft.rfft2(tpl[..., k], pad))
                     corr = np.fft.irfft2(spec, pad)
@@ -1005,7 +1026,7 @@ class BuildCameras:
         more = list(first)
         if anchor is not None:
             # the base may be turned round: other starts and quarter turns
-            starts = self._sweep(base, pic, anchor)
+            starts = self._sweep(base, pic, anchor, both=True)
             more += [
                 (self._fit_inside(base, pic, c), "carried")
                 for c in starts
@@ -1094,7 +1115,8 @@ class BuildCameras:
         # few by either are fitted
         wholes: list[tuple[float, _bg.Assembly, _bg.Camera]] = []  # in box order
         for whole, cam in wholes_box:
-            found = self._sweep_scored(whole, pic, cam, wide=False)
+            # a whole is all the picture shows: every pixel's colour counts in full
+            found = self._sweep_scored(whole, pic, cam, wide=False, kernel=False)
             if found:
                 wholes.append((found[0][0], whole, found[0][1]))
         by_colour = sorted(range(len(wholes)), key=lambda i: -wholes[i][0])[:JOINT_STARTS]
