@@ -251,6 +251,19 @@ class _Picture:
             self._box = (fg, _ndc_box(fg) if fg.any() else None)
         return self._box
 
+    def _padded(self) -> tuple[np.ndarray, np.ndarray]:
+        """The reduced drawing and colours at twice the size, beyond the picture page (its
+        median colour off the drawing)."""
+        h, w = self.small.shape
+        off = self.small < 0.5
+        page = np.median(self.small_rgb[off], axis=0) if off.any() else np.ones(3)
+        colours = np.empty((2 * h, 2 * w, 3), dtype=np.float32)
+        colours[...] = page
+        colours[:h, :w] = self.small_rgb
+        drawing = np.zeros((2 * h, 2 * w), dtype=np.float32)
+        drawing[:h, :w] = self.small
+        return drawing, colours
+
     def sweep_spectra(self) -> tuple[np.ndarray, np.ndarray]:
         """The scale sweep's view of the reduced picture (:meth:`BuildCameras._match`), as
         spectra at twice its size: the weight per pixel of the reference (+1 on the drawing,
@@ -259,14 +272,7 @@ class _Picture:
         reference placed partly or wholly outside scores there as off the drawing, not as on a
         black page that costs nothing (which drew dark parts out of the picture)."""
         if self._spectra is None:
-            h, w = self.small.shape
-            off = self.small < 0.5
-            page = np.median(self.small_rgb[off], axis=0) if off.any() else np.ones(3)
-            colours = np.empty((2 * h, 2 * w, 3), dtype=np.float32)
-            colours[...] = page
-            colours[:h, :w] = self.small_rgb
-            drawing = np.zeros((2 * h, 2 * w), dtype=np.float32)
-            drawing[:h, :w] = self.small
+            drawing, colours = self._padded()
             weight = drawing - 2.0 * (1.0 - drawing) - SWEEP_COLOUR * (colours**2).sum(axis=2)
             self._spectra = (
                 np.fft.rfft2(weight),
@@ -280,15 +286,9 @@ class _Picture:
         for ``centres``), as spectra at twice its size, beyond the picture page."""
         key = centres.tobytes()
         if self._kernel is None or self._kernel[0] != key:
-            h, w = self.small.shape
-            off = self.small < 0.5
-            page = np.median(self.small_rgb[off], axis=0) if off.any() else np.ones(3)
-            drawing = np.zeros((2 * h, 2 * w), dtype=np.float32)
-            drawing[:h, :w] = self.small
+            drawing, colours = self._padded()
             weight = -SWEEP_ON * drawing - 2.0 * (1.0 - drawing)
-            feats = np.empty((2 * h, 2 * w, len(centres)), dtype=np.float32)
-            feats[...] = _colour_features(page, centres)
-            feats[:h, :w] = _colour_features(self.small_rgb, centres)
+            feats = _colour_features(colours, centres)
             spectra = np.stack([np.fft.rfft2(feats[..., k]) for k in range(len(centres))])
             self._kernel = (key, np.fft.rfft2(weight), spectra)
         return self._kernel[1], self._kernel[2]
@@ -816,7 +816,8 @@ class BuildCameras:
             f_weight, f_colour = pic.sweep_spectra()
 
         def place(scales: list[float]) -> list[tuple[float, _bg.Camera]]:
-            # per pixel of the reference at offset tau: W(x+tau) - sum_c (P_c(x+tau) - T_c(x))^2
+            # per pixel of the reference at offset tau: W(x+tau) + MATCH sum_k F_k(P(x+tau)) F_k(T(x))
+            # (kernel), or W(x+tau) - COLOUR sum_c (P_c(x+tau) - T_c(x))^2
             out = []
             for scale in scales:
                 c = _with(ref, scale=scale, translation=(0.0, 0.0))
