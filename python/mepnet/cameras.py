@@ -698,18 +698,12 @@ class BuildCameras:
         return _prefer_front([(f, "") for f in fits], lambda f: f.agree)[0][0]
 
     def _sweep(
-        self,
-        shape: _bg.Assembly,
-        pic: _Picture,
-        cam: _bg.Camera,
-        wide: bool = True,
-        both: bool = False,
+        self, shape: _bg.Assembly, pic: _Picture, cam: _bg.Camera, wide: bool = True
     ) -> list[_bg.Camera]:
         """Scale and translation for ``cam``'s orientation that put the shape where the picture
         shows it (:meth:`_match` of the shape rendered once). The cameras of the three best
-        distinct starts; ``both``: then those the squared colour difference ranks best (a
-        new part much like the base in colour draws the colour kernel's starts onto it)."""
-        return [c for _, c in self._sweep_scored(shape, pic, cam, wide, both)]
+        distinct starts."""
+        return [c for _, c in self._sweep_scored(shape, pic, cam, wide)]
 
     def _sweep_scored(
         self,
@@ -721,7 +715,10 @@ class BuildCameras:
         kernel: bool | None = None,
     ) -> list[tuple[float, _bg.Camera]]:
         """:meth:`_sweep` with each start's :meth:`_match` score (each scoring's own);
-        ``kernel``: the scoring (:data:`SWEEP_KERNEL` by default)."""
+        ``kernel``: the scoring (:data:`SWEEP_KERNEL` by default); ``both``: the colour
+        kernel's starts, then the distinct ones the squared colour difference ranks best (a new
+        part much like the base in colour draws the kernel's starts onto it)."""
+        kernel = SWEEP_KERNEL if kernel is None else kernel
         n = 2 * WORK_PX
         ref = _with(cam, scale=1.0, translation=(0.0, 0.0)).fitted(
             np.asarray(bounds_corners(shape), dtype=np.float64), 0.9
@@ -729,7 +726,7 @@ class BuildCameras:
         render = _bg.render(shape, ref, n, n)
         rgb = render.rgb.astype(np.float32) / 255.0
         out = self._match(render.ids >= 0, rgb, ref, pic, wide=wide, kernel=kernel)
-        if both and SWEEP_KERNEL and kernel is not False:
+        if both and kernel:
             w = pic.small.shape[1]
             for sc, c in self._match(render.ids >= 0, rgb, ref, pic, wide=wide, kernel=False):
                 if all(_start_distance(c, o, w) > 2.0 for _, o in out):
@@ -811,9 +808,10 @@ class BuildCameras:
             centres = _colour_centres(rgb_ref[sil_ref])
             f_weight, f_colour = pic.kernel_spectra(centres)
             # the reference's colour features, resampled with its silhouette at each scale
-            rgb_ref = _colour_features(rgb_ref, centres)
+            values = _colour_features(rgb_ref, centres)
         else:
             f_weight, f_colour = pic.sweep_spectra()
+            values = rgb_ref
 
         def place(scales: list[float]) -> list[tuple[float, _bg.Camera]]:
             # per pixel of the reference at offset tau: W(x+tau) + MATCH sum_k F_k(P(x+tau)) F_k(T(x))
@@ -821,7 +819,7 @@ class BuildCameras:
             out = []
             for scale in scales:
                 c = _with(ref, scale=scale, translation=(0.0, 0.0))
-                sil, tpl = self._resampled(sil_ref, rgb_ref, ref, c, (h, w))
+                sil, tpl = self._resampled(sil_ref, values, ref, c, (h, w))
                 if not sil.any():
                     continue
                 spec = f_weight * np.conj(np.fft.rfft2(sil, pad))
@@ -1027,7 +1025,7 @@ class BuildCameras:
         more = list(first)
         if anchor is not None:
             # the base may be turned round: other starts and quarter turns
-            starts = self._sweep(base, pic, anchor, both=True)
+            starts = [c for _, c in self._sweep_scored(base, pic, anchor, both=True)]
             more += [
                 (self._fit_inside(base, pic, c), "carried")
                 for c in starts
