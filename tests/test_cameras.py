@@ -448,13 +448,43 @@ def test_the_scale_sweep_finds_a_shape_built_far_from_the_origin(tmp_path: Path)
 
     est = BuildCameras((256, 256))
     pic = est.picture(Step(2, path, None, [], (256, 256)))
-    start = _bg.Camera(cam.elevation, cam.azimuth, 0.0, 1.0, (0.0, 0.0))
+    # the previous step's view, zoomed in 1.2 times
+    start = _bg.Camera(cam.elevation, cam.azimuth, 0.0, 1.2 * cam.scale, (0.0, 0.0))
     found = est._sweep_scored(whole, pic, start, wide=False)
     assert found
     best = found[0][1]
     assert abs(best.scale / cam.scale - 1.0) < 0.03, best
     fit = est._fit(whole, pic, best, (4, 1, 0))
     corners = np.asarray(bounds_corners(whole), dtype=np.float64)
+    assert reprojection_error(fit.camera, cam, corners, (256, 256)) < 1.0, fit.camera
+
+
+def test_the_usual_zoom_is_the_previous_steps_not_the_framed_shapes(tmp_path: Path):
+    """A 2x8 plate with a brick and a plate on it, drawn small (the shape spans a third of the
+    picture) after a step drawn 1.5 times larger. The narrow sweep looks within the usual zoom
+    of the previous step's scale; it looked within the usual zoom of the shape framed to fill
+    the picture, which a shape this small lies outside of, and started 20% too small (U20
+    manual 4, step 2). The first start's zoom within 8% of the truth, its fit within a pixel."""
+    from mepnet.cameras import reprojection_error
+    from mepnet.geom import bounds_corners
+    from mepnet.manual.page import Step
+
+    plate, brick, small = (_bg.Component.primitive(p) for p in ("3034", "3001", "3710"))
+    base = _bg.Assembly()
+    base.add(plate, 0, (0, 1, 0), 288)
+    whole = base.copy()
+    whole.add(brick, 0, (-4, 4, 0), 0)
+    whole.add(small, 1, (6, 2, 0), 4)
+    cam = _bg.Camera(27.5, 53.7, 0.0, 0.0056, (0.19, 0.13))
+    path = tmp_path / "step.png"
+    Image.fromarray(_bg.render(whole, cam, 256, 256).rgb).save(path)
+    est = BuildCameras((256, 256))
+    pic = est.picture(Step(2, path, None, [], (256, 256)))
+    prev = _bg.Camera(27.5, 53.7, 0.0, 1.5 * cam.scale, (0.0, 0.0))
+    start = est._sweep(base, pic, prev, wide=False)[0]
+    assert abs(start.scale / cam.scale - 1.0) < 0.08, (start, cam)
+    fit = est._fit_inside(base, pic, start)
+    corners = np.asarray(bounds_corners(base), dtype=np.float64)
     assert reprojection_error(fit.camera, cam, corners, (256, 256)) < 1.0, fit.camera
 
 

@@ -725,10 +725,15 @@ class BuildCameras:
         )
         render = _bg.render(shape, ref, n, n)
         rgb = render.rgb.astype(np.float32) / 255.0
-        out = self._match(render.ids >= 0, rgb, ref, pic, wide=wide, kernel=kernel)
+        # the usual zoom is relative to the scale ``cam`` brings (the previous step's), not to
+        # the reference's (the shape framed to fill the picture)
+        prior = float(cam.scale)
+        out = self._match(render.ids >= 0, rgb, ref, pic, wide=wide, kernel=kernel, prior=prior)
         if both and kernel:
             w = pic.small.shape[1]
-            for sc, c in self._match(render.ids >= 0, rgb, ref, pic, wide=wide, kernel=False):
+            for sc, c in self._match(
+                render.ids >= 0, rgb, ref, pic, wide=wide, kernel=False, prior=prior
+            ):
                 if all(_start_distance(c, o, w) > 2.0 for _, o in out):
                     out.append((sc, c))
         return out
@@ -791,11 +796,14 @@ class BuildCameras:
         starts: int = 3,
         wide: bool = True,
         kernel: bool | None = None,
+        prior: float | None = None,
     ) -> list[tuple[float, _bg.Camera]]:
         """Scale and translation, for the orientation of ``ref``, that put a reference (a
         silhouette and its colours as camera ``ref`` sees them) where the picture shows it: the
-        reference resampled at scales around ``ref.scale`` (coarse, then finer around the best
-        overall and the best within :data:`SWEEP_PRIOR`),
+        reference resampled at scales around ``ref.scale`` (``wide``: :data:`SWEEP_RATIOS` of
+        it; else only those within :data:`SWEEP_PRIOR` of the ``prior`` scale, by default
+        ``ref.scale``; coarse, then finer around the best overall and the best within
+        :data:`SWEEP_PRIOR` of ``prior``),
         each placed by FFT cross-correlation with the reduced picture, every pixel of the
         reference scoring +1 on the drawing, -2 off it, less :data:`SWEEP_COLOUR` times its
         squared colour difference (so the reference is as large as the drawing allows, where
@@ -848,19 +856,21 @@ class BuildCameras:
                     )
             return out
 
-        cam = ref
+        usual = float(ref.scale) if prior is None else prior
 
         def near_ratio(r: float) -> bool:
             return SWEEP_PRIOR[0] <= r <= SWEEP_PRIOR[1]
 
-        ratios = SWEEP_RATIOS if wide else [r for r in SWEEP_RATIOS if near_ratio(r)]
-        coarse = place([cam.scale * r for r in ratios])
+        if wide:
+            coarse = place([ref.scale * r for r in SWEEP_RATIOS])
+        else:
+            coarse = place([usual * r for r in SWEEP_RATIOS if near_ratio(r)])
         if not coarse:
             return []
         step = SWEEP_RATIOS[1] / SWEEP_RATIOS[0]
 
         def near(c: _bg.Camera) -> bool:  # within the zoom a step usually changes by
-            return near_ratio(c.scale / cam.scale)
+            return near_ratio(c.scale / usual)
 
         # refined around the best overall and the best within the usual zoom (a base mostly
         # hidden by new parts of other colours scores best shrunk into one of its own faces)
