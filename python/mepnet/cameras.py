@@ -702,7 +702,8 @@ class BuildCameras:
     ) -> list[_bg.Camera]:
         """Scale and translation for ``cam``'s orientation that put the shape where the picture
         shows it (:meth:`_match` of the shape rendered once). The cameras of the three best
-        distinct starts."""
+        distinct starts, the best within the usual zoom of ``cam``'s scale first (``wide``
+        False: only scales within it)."""
         return [c for _, c in self._sweep_scored(shape, pic, cam, wide)]
 
     def _sweep_scored(
