@@ -239,6 +239,7 @@ class _Picture:
     _box: tuple[np.ndarray, tuple[float, float, float, float] | None] | None = None
     _spectra: tuple[np.ndarray, np.ndarray] | None = None
     _kernel: tuple[bytes, np.ndarray, np.ndarray] | None = None
+    _pad: tuple[np.ndarray, np.ndarray] | None = None
 
     @property
     def blank(self) -> bool:
@@ -253,7 +254,9 @@ class _Picture:
 
     def _padded(self) -> tuple[np.ndarray, np.ndarray]:
         """The reduced drawing and colours at twice the size, beyond the picture page (its
-        median colour off the drawing)."""
+        median colour off the drawing; made once, both sweeps' spectra start from it)."""
+        if self._pad is not None:
+            return self._pad
         h, w = self.small.shape
         off = self.small < 0.5
         page = np.median(self.small_rgb[off], axis=0) if off.any() else np.ones(3)
@@ -262,7 +265,8 @@ class _Picture:
         colours[:h, :w] = self.small_rgb
         drawing = np.zeros((2 * h, 2 * w), dtype=np.float32)
         drawing[:h, :w] = self.small
-        return drawing, colours
+        self._pad = (drawing, colours)
+        return self._pad
 
     def sweep_spectra(self) -> tuple[np.ndarray, np.ndarray]:
         """The scale sweep's view of the reduced picture (:meth:`BuildCameras._match`), as
@@ -805,11 +809,13 @@ class BuildCameras:
         it; else only those within :data:`SWEEP_PRIOR` of the ``prior`` scale, by default
         ``ref.scale``; coarse, then finer around the best overall and the best within
         :data:`SWEEP_PRIOR` of ``prior``),
-        each placed by FFT cross-correlation with the reduced picture, every pixel of the
-        reference scoring +1 on the drawing, -2 off it, less :data:`SWEEP_COLOUR` times its
-        squared colour difference (so the reference is as large as the drawing allows, where
-        its colours are). The best ``starts`` distinct placements: the best within
-        :data:`SWEEP_PRIOR` first, then the best overall."""
+        each placed by FFT cross-correlation with the reduced picture. ``kernel`` (default
+        :data:`SWEEP_KERNEL`): every pixel of the reference scores :data:`SWEEP_MATCH` times its
+        colour's likeness to the picture's there, less :data:`SWEEP_ON` on the drawing and 2 off
+        it; else +1 on the drawing, -2 off it, less :data:`SWEEP_COLOUR` times its squared colour
+        difference (so the reference is as large as the drawing allows, where its colours are).
+        The best ``starts`` distinct placements: the best within :data:`SWEEP_PRIOR` first, then
+        the best overall."""
         h, w = pic.small.shape
         pad = (2 * h, 2 * w)
         kernel = SWEEP_KERNEL if kernel is None else kernel
@@ -818,9 +824,11 @@ class BuildCameras:
             f_weight, f_colour = pic.kernel_spectra(centres)
             # the reference's colour features, resampled with its silhouette at each scale
             values = _colour_features(rgb_ref, centres)
+            gain = SWEEP_MATCH
         else:
             f_weight, f_colour = pic.sweep_spectra()
             values = rgb_ref
+            gain = 2.0 * SWEEP_COLOUR  # the cross term of the squared difference
 
         def place(scales: list[float]) -> list[tuple[float, _bg.Camera]]:
             # per pixel of the reference at offset tau: W(x+tau) + MATCH sum_k F_k(P(x+tau)) F_k(T(x))
@@ -832,19 +840,11 @@ class BuildCameras:
                 if not sil.any():
                     continue
                 spec = f_weight * np.conj(np.fft.rfft2(sil, pad))
-                if kernel:
-                    for k in range(len(centres)):
-                        spec += SWEEP_MATCH * f_colour[k] * np.conj(np.fft.rfft2(tpl[..., k], pad))
-                    corr = np.fft.irfft2(spec, pad)
-                else:
-                    for ch in range(3):
-                        spec += (
-                            2.0
-                            * SWEEP_COLOUR
-                            * f_colour[ch]
-                            * np.conj(np.fft.rfft2(tpl[..., ch], pad))
-                        )
-                    corr = np.fft.irfft2(spec, pad) - SWEEP_COLOUR * float((tpl**2).sum())
+                for k in range(values.shape[-1]):
+                    spec += gain * f_colour[k] * np.conj(np.fft.rfft2(tpl[..., k], pad))
+                corr = np.fft.irfft2(spec, pad)
+                if not kernel:  # the squared difference's template term
+                    corr -= SWEEP_COLOUR * float((tpl**2).sum())
                 cx, cy = _centred(ref, c.scale)
                 for _ in range(2):  # the two best offsets, apart
                     dy, dx = np.unravel_index(int(np.argmax(corr)), corr.shape)
