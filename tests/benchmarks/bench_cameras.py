@@ -46,9 +46,11 @@ def main(argv: list[str] | None = None) -> int:
             for b in run.builds:
                 for s in b.steps:
                     assert s.camera is not None
-                    (first if s.index == 1 else later).append(s.camera.seconds)
                     predictor_s.append(s.seconds)
-                    if s.index > 1:
+                    if s.index == 1:
+                        first.append(s.camera.seconds)
+                    else:
+                        later.append(s.camera.seconds)
                         by_kept.setdefault(s.camera.how, []).append(s.camera.seconds)
     cpu = time.process_time() - cpu0
     wall_all = np.array(first + later)
