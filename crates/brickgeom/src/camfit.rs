@@ -1071,6 +1071,10 @@ struct Level<'a> {
 /// The lighting class of page samples (faces are 0..=2, their axis).
 const PAGE: u8 = 3;
 
+/// Samples per parallel task of a fit's per-sample sums (fixed, so that the sums do not depend
+/// on the number of threads).
+const CHUNK: usize = 512;
+
 /// How template colours map onto the picture's: per channel a gain and bias (another renderer's
 /// tone curve and page tint), and per lighting class a shade factor (another renderer lights
 /// faces of each axis differently: LeoCAD draws the faces mepnet darkens most at 1.6 times
@@ -1108,12 +1112,159 @@ const SHADE_MIN_SQUARE: f64 = 0.003_125;
 /// Where a sample projects and the picture's colour there (None: off the picture).
 type Seen = Option<([f64; 2], [f32; 3])>;
 
+/// The samples a tone is fitted to: those that fell on the picture, template and picture colour
+/// per channel and the lighting class, in the samples' order.
+struct ToneSamples {
+    template: Vec<[f64; 3]>,
+    picture: Vec<[f64; 3]>,
+    classes: Vec<u8>,
+}
+
+impl ToneSamples {
+    fn new(seen: &[Seen], template: &[[f32; 3]], classes: &[u8]) -> ToneSamples {
+        let n = seen.len();
+        let mut out = ToneSamples {
+            template: Vec::with_capacity(n),
+            picture: Vec::with_capacity(n),
+            classes: Vec::with_capacity(n),
+        };
+        for ((s, tv), &cl) in seen.iter().zip(template).zip(classes) {
+            if let Some((_, pv)) = s {
+                out.template.push(tv.map(f64::from));
+                out.picture.push(pv.map(f64::from));
+                out.classes.push(cl);
+            }
+        }
+        out
+    }
+
+    /// Per channel, gain and bias by weighted least squares (the template shaded by `shade`);
+    /// starts from the identity shifted by the median difference and from plain least squares,
+    /// keeps the one more samples follow, refits on its inliers. The channels in parallel.
+    fn channel_tone(&self, shade: &[f64; 4], k: f64) -> [[f64; 2]; 3] {
+        let mut tone = [[1.0, 0.0]; 3];
+        tone.par_iter_mut()
+            .enumerate()
+            .for_each(|(c, t)| *t = self.channel(c, shade, k));
+        tone
+    }
+
+    /// [`ToneSamples::channel_tone`] of channel `c`.
+    fn channel(&self, c: usize, shade: &[f64; 4], k: f64) -> [f64; 2] {
+        let pairs: Vec<(f64, f64)> = self
+            .template
+            .iter()
+            .zip(&self.picture)
+            .zip(&self.classes)
+            .map(|((tv, pv), &cl)| (shade[cl as usize] * tv[c], pv[c]))
+            .collect();
+        if pairs.len() < 16 {
+            return [1.0, 0.0];
+        }
+        let pairs = &pairs;
+        let mut diffs: Vec<f64> = pairs.iter().map(|(a, b)| b - a).collect();
+        let mid = diffs.len() / 2;
+        let median = *diffs.select_nth_unstable_by(mid, f64::total_cmp).1;
+        let mut starts = vec![[1.0, median]];
+        if let Some(g) = weighted_line(pairs, |_, _| 1.0) {
+            starts.push(g);
+        }
+        let follows = |g: &[f64; 2]| {
+            pairs
+                .iter()
+                .filter(|(a, b)| (b - (g[0] * a + g[1])).abs() < k / 2.0)
+                .count()
+        };
+        let mut best = *starts
+            .iter()
+            .max_by_key(|g| follows(g))
+            .unwrap_or(&[1.0, 0.0]);
+        for _ in 0..2 {
+            let g = best;
+            let weight = |a: f64, b: f64| tukey_weight(b - (g[0] * a + g[1]), k);
+            let Some(mut n) = weighted_line(pairs, weight) else {
+                break;
+            };
+            // a renderer draws its own tones, but not the page and the parts all in one
+            // colour: a flat gain would let the shape shrink into one face of the picture
+            if !(TONE_GAIN.0..=TONE_GAIN.1).contains(&n[0]) {
+                n[0] = n[0].clamp(TONE_GAIN.0, TONE_GAIN.1);
+                let (mut sw, mut sr) = (0.0, 0.0);
+                for &(a, b) in pairs.iter() {
+                    let w = weight(a, b);
+                    sw += w;
+                    sr += w * (b - n[0] * a);
+                }
+                if sw <= 0.0 {
+                    break;
+                }
+                n[1] = sr / sw;
+            }
+            best = n;
+        }
+        [
+            best[0].clamp(TONE_GAIN.0, TONE_GAIN.1),
+            best[1].clamp(-TONE_BIAS, TONE_BIAS),
+        ]
+    }
+
+    /// Each face class's shade factor for the channels' gain and bias of `tone`: robust
+    /// (Tukey-weighted) least squares over the class's samples and channels, from its current
+    /// shade; a class with few samples, or dark ones only (that say nothing of it), keeps it.
+    /// The classes in parallel.
+    fn shades(&self, tone: &Tone, k: f64) -> [f64; 4] {
+        let mut shade = tone.shade;
+        shade[..PAGE as usize]
+            .par_iter_mut()
+            .enumerate()
+            .for_each(|(class, sh)| *sh = self.shade(class, *sh, tone, k));
+        shade
+    }
+
+    /// [`ToneSamples::shades`] of class `class`, from its shade `sh`.
+    fn shade(&self, class: usize, sh: f64, tone: &Tone, k: f64) -> f64 {
+        // per sample and channel: (gain * template, picture - bias)
+        let mut pairs: Vec<(f64, f64)> = Vec::new();
+        for ((tv, pv), _) in self
+            .template
+            .iter()
+            .zip(&self.picture)
+            .zip(&self.classes)
+            .filter(|(_, &cl)| cl as usize == class)
+        {
+            for c in 0..3 {
+                let [g, b] = tone.channels[c];
+                pairs.push((g * tv[c], pv[c] - b));
+            }
+        }
+        if pairs.len() < 3 * SHADE_MIN_SAMPLES {
+            return sh;
+        }
+        let mut s = sh;
+        for _ in 0..3 {
+            let (mut num, mut den) = (0.0, 0.0);
+            for &(a, y) in pairs.iter() {
+                let w = tukey_weight(y - s * a, k);
+                num += w * a * y;
+                den += w * a * a;
+            }
+            // a face class of dark colours only: its shade hardly shows
+            if den < SHADE_MIN_SQUARE * pairs.len() as f64 {
+                break;
+            }
+            s = (num / den).clamp(SHADE.0, SHADE.1);
+        }
+        s
+    }
+}
+
 impl Level<'_> {
     /// Picture colours where the samples project with the pixel matrix `m`.
     fn sampled(&self, m: &[[f64; 4]; 2]) -> Vec<Seen> {
         let (w, h) = (self.picture.w as f64, self.picture.h as f64);
         self.points
-            .iter()
+            .par_iter()
+            .with_min_len(CHUNK)
             .map(|x| {
                 let q = [0, 1].map(|a| m[a][0] * x[0] + m[a][1] * x[1] + m[a][2] * x[2] + m[a][3]);
                 if q[0] < 0.0 || q[1] < 0.0 || q[0] > w || q[1] > h {
@@ -1128,135 +1279,37 @@ impl Level<'_> {
     /// with the shades as they stand, then each lighting class's shade with those, twice, and
     /// the channels once more.
     fn tone(&self, seen: &[Seen], k: f64) -> Tone {
+        let samples = ToneSamples::new(seen, &self.template, self.classes);
         let mut tone = Tone::IDENTITY;
         for round in 0..3 {
-            tone.channels = self.channel_tone(seen, &tone.shade, k);
+            tone.channels = samples.channel_tone(&tone.shade, k);
             if round < 2 {
-                tone.shade = self.shades(seen, &tone, k);
+                tone.shade = samples.shades(&tone, k);
             }
         }
         tone
-    }
-
-    /// Per channel, gain and bias by weighted least squares (the template shaded by `shade`);
-    /// starts from the identity shifted by the median difference and from plain least squares,
-    /// keeps the one more samples follow, refits on its inliers.
-    fn channel_tone(&self, seen: &[Seen], shade: &[f64; 4], k: f64) -> [[f64; 2]; 3] {
-        let mut tone = [[1.0, 0.0]; 3];
-        for (c, t) in tone.iter_mut().enumerate() {
-            let pairs: Vec<(f64, f64)> = seen
-                .iter()
-                .zip(&self.template)
-                .zip(self.classes)
-                .filter_map(|((s, tv), &cl)| {
-                    s.map(|(_, pv)| (shade[cl as usize] * tv[c] as f64, pv[c] as f64))
-                })
-                .collect();
-            if pairs.len() < 16 {
-                continue;
-            }
-            let mut diffs: Vec<f64> = pairs.iter().map(|(a, b)| b - a).collect();
-            let mid = diffs.len() / 2;
-            let median = *diffs.select_nth_unstable_by(mid, f64::total_cmp).1;
-            let mut starts = vec![[1.0, median]];
-            if let Some(g) = weighted_line(&pairs, |_, _| 1.0) {
-                starts.push(g);
-            }
-            let follows = |g: &[f64; 2]| {
-                pairs
-                    .iter()
-                    .filter(|(a, b)| (b - (g[0] * a + g[1])).abs() < k / 2.0)
-                    .count()
-            };
-            let mut best = *starts
-                .iter()
-                .max_by_key(|g| follows(g))
-                .unwrap_or(&[1.0, 0.0]);
-            for _ in 0..2 {
-                let g = best;
-                let weight = |a: f64, b: f64| tukey_weight(b - (g[0] * a + g[1]), k);
-                let Some(mut n) = weighted_line(&pairs, weight) else {
-                    break;
-                };
-                // a renderer draws its own tones, but not the page and the parts all in one
-                // colour: a flat gain would let the shape shrink into one face of the picture
-                if !(TONE_GAIN.0..=TONE_GAIN.1).contains(&n[0]) {
-                    n[0] = n[0].clamp(TONE_GAIN.0, TONE_GAIN.1);
-                    let (mut sw, mut sr) = (0.0, 0.0);
-                    for &(a, b) in &pairs {
-                        let w = weight(a, b);
-                        sw += w;
-                        sr += w * (b - n[0] * a);
-                    }
-                    if sw <= 0.0 {
-                        break;
-                    }
-                    n[1] = sr / sw;
-                }
-                best = n;
-            }
-            *t = [
-                best[0].clamp(TONE_GAIN.0, TONE_GAIN.1),
-                best[1].clamp(-TONE_BIAS, TONE_BIAS),
-            ];
-        }
-        tone
-    }
-
-    /// Each face class's shade factor for the channels' gain and bias of `tone`: robust
-    /// (Tukey-weighted) least squares over the class's samples and channels, from its current
-    /// shade; a class with few samples, or dark ones only (that say nothing of it), keeps it.
-    fn shades(&self, seen: &[Seen], tone: &Tone, k: f64) -> [f64; 4] {
-        let mut shade = tone.shade;
-        for (class, sh) in shade.iter_mut().enumerate().take(PAGE as usize) {
-            // per sample and channel: (gain * template, picture - bias)
-            let pairs: Vec<(f64, f64)> = seen
-                .iter()
-                .zip(&self.template)
-                .zip(self.classes)
-                .filter(|(_, &cl)| cl as usize == class)
-                .filter_map(|((s, tv), _)| s.map(|(_, pv)| (tv, pv)))
-                .flat_map(|(tv, pv)| {
-                    (0..3).map(move |c| {
-                        let [g, b] = tone.channels[c];
-                        (g * tv[c] as f64, pv[c] as f64 - b)
-                    })
-                })
-                .collect();
-            if pairs.len() < 3 * SHADE_MIN_SAMPLES {
-                continue;
-            }
-            let mut s = *sh;
-            for _ in 0..3 {
-                let (mut num, mut den) = (0.0, 0.0);
-                for &(a, y) in &pairs {
-                    let w = tukey_weight(y - s * a, k);
-                    num += w * a * y;
-                    den += w * a * a;
-                }
-                // a face class of dark colours only: its shade hardly shows
-                if den < SHADE_MIN_SQUARE * pairs.len() as f64 {
-                    break;
-                }
-                s = (num / den).clamp(SHADE.0, SHADE.1);
-            }
-            *sh = s;
-        }
-        shade
     }
 
     /// Mean robust cost of sampled colours.
     fn cost_of(&self, seen: &[Seen], tone: &Tone, k: f64) -> f64 {
-        let mut cost = 0.0;
-        for ((s, tv), &cl) in seen.iter().zip(&self.template).zip(self.classes) {
-            cost += match s {
-                None => 3.0 * k * k / 6.0,
-                Some((_, pv)) => (0..3)
-                    .map(|c| tukey_rho(pv[c] as f64 - tone.model(c, cl, tv[c]), k))
-                    .sum(),
-            };
-        }
-        cost / self.points.len().max(1) as f64
+        let partial: Vec<f64> = seen
+            .par_chunks(CHUNK)
+            .zip(self.template.par_chunks(CHUNK))
+            .zip(self.classes.par_chunks(CHUNK))
+            .map(|((seen, template), classes)| {
+                let mut cost = 0.0;
+                for ((s, tv), &cl) in seen.iter().zip(template).zip(classes) {
+                    cost += match s {
+                        None => 3.0 * k * k / 6.0,
+                        Some((_, pv)) => (0..3)
+                            .map(|c| tukey_rho(pv[c] as f64 - tone.model(c, cl, tv[c]), k))
+                            .sum(),
+                    };
+                }
+                cost
+            })
+            .collect();
+        partial.iter().sum::<f64>() / self.points.len().max(1) as f64
     }
 
     /// Mean robust cost at parameters `p` with a given tone.
@@ -1273,16 +1326,53 @@ impl Level<'_> {
         let tone = self.tone(&seen, k);
         let cost = self.cost_of(&seen, &tone, k);
         let n = free.len();
+        // per chunk of samples: J^T W J, J^T W r and the samples used; summed in chunk order
+        let partial: Vec<([[f64; 6]; 6], [f64; 6], usize)> = self
+            .points
+            .par_chunks(CHUNK)
+            .zip(seen.par_chunks(CHUNK))
+            .zip(self.template.par_chunks(CHUNK))
+            .zip(self.classes.par_chunks(CHUNK))
+            .map(|(((points, seen), template), classes)| {
+                self.normal_sums(points, seen, template, classes, &tone, &dm, free, k)
+            })
+            .collect();
         let mut jtj = [[0.0f64; 6]; 6];
         let mut jtr = [0.0f64; 6];
         let mut used = 0;
-        for (((x, s), tv), &cl) in self
-            .points
-            .iter()
-            .zip(&seen)
-            .zip(&self.template)
-            .zip(self.classes)
-        {
+        for (pj, pr, pu) in &partial {
+            for a in 0..n {
+                jtr[a] += pr[a];
+                for b in a..n {
+                    jtj[a][b] += pj[a][b];
+                }
+            }
+            used += pu;
+        }
+        let jtj = DMatrix::from_fn(n, n, |a, b| if a <= b { jtj[a][b] } else { jtj[b][a] });
+        let jtr = DVector::from_fn(n, |a, _| jtr[a]);
+        Ok((tone, cost, jtj, jtr, used))
+    }
+
+    /// [`Level::normal_equations`]' sums over some samples (`points` with what they `seen`,
+    /// their `template` colours and `classes`), the pixel matrix's derivatives `dm`.
+    #[allow(clippy::too_many_arguments)]
+    fn normal_sums(
+        &self,
+        points: &[[f64; 3]],
+        seen: &[Seen],
+        template: &[[f32; 3]],
+        classes: &[u8],
+        tone: &Tone,
+        dm: &[PixelMatrix; 6],
+        free: &[usize],
+        k: f64,
+    ) -> ([[f64; 6]; 6], [f64; 6], usize) {
+        let n = free.len();
+        let mut jtj = [[0.0f64; 6]; 6];
+        let mut jtr = [0.0f64; 6];
+        let mut used = 0;
+        for (((x, s), tv), &cl) in points.iter().zip(seen).zip(template).zip(classes) {
             let Some((q, pv)) = s else {
                 continue;
             };
@@ -1315,9 +1405,7 @@ impl Level<'_> {
                 }
             }
         }
-        let jtj = DMatrix::from_fn(n, n, |a, b| if a <= b { jtj[a][b] } else { jtj[b][a] });
-        let jtr = DVector::from_fn(n, |a, _| jtr[a]);
-        Ok((tone, cost, jtj, jtr, used))
+        (jtj, jtr, used)
     }
 }
 
@@ -1682,6 +1770,42 @@ mod tests {
         let err = reprojection(&fit.camera, &cam, size);
         assert!(err < 0.2, "reprojection error {err} px");
         assert!(fit.agree > 0.9 && fit.iou > 0.9, "{fit:?}");
+    }
+
+    #[test]
+    fn fit_does_not_depend_on_the_number_of_threads() {
+        let asm = shape();
+        let cam = truth();
+        let size = 160;
+        let pic = picture(&asm, &cam, size);
+        let fg = foreground(&pic, size, size, 30.0, 4).unwrap();
+        let mut p = params_of(&cam);
+        p[0] += 1.5;
+        p[3] += 0.02;
+        p[4] -= 0.03;
+        let init = camera_of(&p).unwrap();
+        let fit_with = |threads: usize| {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            pool.install(|| {
+                fit_camera(
+                    &asm,
+                    &FitPicture::new(&pic, size, size).unwrap(),
+                    &fg.mask,
+                    &init,
+                    &FitOptions::default(),
+                    &MeshSource::builtin(),
+                    &ColourTable::builtin(),
+                )
+                .unwrap()
+            })
+        };
+        let (one, three) = (fit_with(1), fit_with(3));
+        assert_eq!(params_of(&one.camera), params_of(&three.camera));
+        assert_eq!((one.agree, one.cost), (three.agree, three.cost));
+        assert!(one.samples > 2 * CHUNK, "the sums span several chunks");
     }
 
     #[test]
