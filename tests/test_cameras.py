@@ -970,3 +970,40 @@ def test_a_check_that_explains_the_silhouette_tells_the_style():
     cams.accept(step, est, SimpleNamespace(iou=STYLE_IOU - 0.05, agree=0.7, camera=cam))  # type: ignore[arg-type]
     cams.accept(step, est, None)  # type: ignore[arg-type]
     assert cams.style.agrees == [0.8]
+
+
+def test_picture_reductions_match_numpy_reference():
+    """The histogram median and the cell sums give what plain numpy gives, exactly."""
+    from mepnet.cameras import _median_u8, _reduce
+
+    rng = np.random.default_rng(3)
+    for n in (1, 2, 7, 1000, 4001):
+        v = rng.integers(0, 256, (n, 3), dtype=np.uint8)
+        want = np.median(v.astype(np.float32), axis=0)
+        got = _median_u8(v)
+        assert got.dtype == want.dtype and np.array_equal(got, want), n
+    for shape in ((256, 256, 3), (200, 130, 3), (256, 256), (97, 64)):
+        im = rng.integers(0, 256, shape, dtype=np.uint8)
+        for x in (im, im > 128):
+            h, w = x.shape[:2]
+            f = -(-max(h, w) // 64)
+            hp, wp = -(-h // f) * f, -(-w // f) * f
+            pad = [(0, hp - h), (0, wp - w)] + [(0, 0)] * (x.ndim - 2)
+            p = np.pad(x, pad, mode="edge").astype(np.float64)
+            want = p.reshape(hp // f, f, wp // f, f, *x.shape[2:]).mean(axis=(1, 3))
+            got = _reduce(x, 64)
+            assert got.dtype == np.float32 and got.shape == want.shape
+            np.testing.assert_allclose(got, want, rtol=1e-6)
+
+
+def test_outline_stripping_leaves_a_black_page_alone():
+    """A drawing on a black page (its median colour 0): nothing to strip, and no division by
+    the page's brightness."""
+    from mepnet.cameras import outline_stripped
+
+    rgb = np.zeros((64, 64, 3), dtype=np.uint8)
+    rgb[16:48, 16:48] = 200
+    rgb[16:48, 16:20] = 10
+    fg = rgb.max(axis=2) > 0
+    out, out_fg = outline_stripped(rgb, fg)
+    assert np.array_equal(out, rgb) and np.array_equal(out_fg, fg)

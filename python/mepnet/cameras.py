@@ -359,9 +359,11 @@ def outline_stripped(rgb: np.ndarray, fg: np.ndarray) -> tuple[np.ndarray, np.nd
     if len(rings) < 6:
         return rgb, fg  # too thin to tell a band from the parts
     pix = rgb.astype(np.float32)
-    page = np.median(pix[~fg], axis=0) if (~fg).any() else np.full(3, 255.0)
+    page = _median_u8(rgb[~fg]) if (~fg).any() else np.full(3, 255.0)
     lum_page = float(page.mean())
-    med = [np.median(pix[r], axis=0) for r in rings]
+    if lum_page <= 0.0:
+        return rgb, fg  # a black page: no ink to tell from it
+    med = [_median_u8(rgb[r]) for r in rings]
     lum = [float(m.mean()) / lum_page for m in med]
     start = 1 if lum[0] > 0.6 else 0  # a halo: pixels the page mostly covers
     ring = pix[rings[start]]
@@ -439,8 +441,29 @@ def _reduce(image: np.ndarray, side: int) -> np.ndarray:
     if (hp, wp) != (h, w):
         pad = [(0, hp - h), (0, wp - w)] + [(0, 0)] * (image.ndim - 2)
         image = np.pad(image, pad, mode="edge")
-    sums = image.reshape(hp // f, f, wp // f, f, *image.shape[2:]).sum(axis=(1, 3), dtype=np.int32)
+    # integer sums over the f x f cells, added row of cells by row (numpy's strided
+    # reduction over two axes with a cast is ten times slower)
+    cells = image.astype(np.int32).reshape(hp // f, f, wp // f, f, *image.shape[2:])
+    rows = cells[:, 0].copy()
+    for k in range(1, f):
+        rows += cells[:, k]
+    sums = rows[:, :, 0].copy()
+    for k in range(1, f):
+        sums += rows[:, :, k]
     return sums.astype(np.float32) / (f * f)
+
+
+def _median_u8(values: np.ndarray) -> np.ndarray:
+    """Per column of ``values`` (N, C) uint8, N >= 1: the median as ``np.median`` gives it for
+    the values as float32 (the mean of the two middle ones when N is even), from a histogram."""
+    n = len(values)
+    out = np.empty(values.shape[1], dtype=np.float32)
+    for c in range(values.shape[1]):
+        cum = np.cumsum(np.bincount(values[:, c], minlength=256))
+        lo = int(np.searchsorted(cum, (n - 1) // 2, side="right"))
+        hi = int(np.searchsorted(cum, n // 2, side="right"))
+        out[c] = (np.float32(lo) + np.float32(hi)) / np.float32(2.0)
+    return out
 
 
 def _distinct(fits: list[tuple[float, _bg.Camera]], n: int) -> list[tuple[float, _bg.Camera]]:
