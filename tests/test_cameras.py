@@ -1007,3 +1007,26 @@ def test_outline_stripping_leaves_a_black_page_alone():
     fg = rgb.max(axis=2) > 0
     out, out_fg = outline_stripped(rgb, fg)
     assert np.array_equal(out, rgb) and np.array_equal(out_fg, fg)
+
+
+def test_sweep_correlations_match_a_direct_sum():
+    """The sweep's batched FFT correlation equals the sum it stands for: at offset (dy, dx),
+    the picture's weight under the reference's silhouette plus ``gain`` times its values
+    times the reference's, the picture (twice the reference's size) wrapping round."""
+    from mepnet.cameras import _correlations, _rfft2
+
+    rng = np.random.default_rng(5)
+    h, w, k, gain = 6, 5, 2, 0.7
+    weight = rng.normal(size=(2 * h, 2 * w)).astype(np.float32)
+    values = rng.normal(size=(k, 2 * h, 2 * w)).astype(np.float32)
+    planes = rng.normal(size=(3, 1 + k, h, w)).astype(np.float32)
+    spectra = _rfft2(np.concatenate([weight[None], values]))
+    got = _correlations(planes, spectra[0], spectra[1:], gain)
+    assert got.shape == (3, 2 * h, 2 * w)
+    for s in range(3):
+        ref = np.zeros((1 + k, 2 * h, 2 * w), np.float64)
+        ref[:, :h, :w] = planes[s]
+        for dy, dx in ((0, 0), (1, 3), (2 * h - 1, 2), (4, 2 * w - 1)):
+            moved = np.roll(np.concatenate([weight[None], values]), (-dy, -dx), axis=(1, 2))
+            want = (moved[0] * ref[0]).sum() + gain * (moved[1:] * ref[1:]).sum()
+            assert got[s, dy, dx] == pytest.approx(want, abs=1e-4)
