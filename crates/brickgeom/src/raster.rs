@@ -901,7 +901,7 @@ mod tests {
                 let mut opts = RenderOptions::new(96, 80);
                 opts.supersample = ss;
                 opts.line_px = line_px;
-                opts.style = style.clone();
+                opts.style = style;
                 let near = render_passes(&items, &cam, &opts, &marks, true).unwrap();
                 let whole = render_passes(&items, &cam, &opts, &marks, false).unwrap();
                 assert_eq!(near.rgb, whole.rgb);
