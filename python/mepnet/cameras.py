@@ -383,7 +383,6 @@ def outline_stripped(rgb: np.ndarray, fg: np.ndarray) -> tuple[np.ndarray, np.nd
     rings = [r for r in _rings(fg, 8) if r.sum() >= 16]
     if len(rings) < 6:
         return rgb, fg  # too thin to tell a band from the parts
-    pix = rgb.astype(np.float32)
     page = _median_u8(rgb[~fg]) if (~fg).any() else np.full(3, 255.0)
     lum_page = float(page.mean())
     if lum_page <= 0.0:
@@ -391,7 +390,7 @@ def outline_stripped(rgb: np.ndarray, fg: np.ndarray) -> tuple[np.ndarray, np.nd
     med = [_median_u8(rgb[r]) for r in rings]
     lum = [float(m.mean()) / lum_page for m in med]
     start = 1 if lum[0] > 0.6 else 0  # a halo: pixels the page mostly covers
-    ring = pix[rings[start]]
+    ring = rgb[rings[start]].astype(np.float32)  # only the ring: not the whole picture
     spread = float(np.median(np.abs(ring - med[start]).max(axis=1))) / lum_page
     if spread > 0.06 or lum[start] > 0.5:
         return rgb, fg  # no outline of one colour around the drawing
