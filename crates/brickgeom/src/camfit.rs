@@ -1741,13 +1741,33 @@ mod tests {
         assert!(d.abs() <= 10.0 + 1e-9, "azimuth {}", best.1.azimuth);
     }
 
+    /// A fit of `asm` to `pic` (`size` a side) from `init` with the builtin parts and colours.
+    fn fit_to(
+        asm: &Assembly,
+        pic: &[u8],
+        size: u32,
+        init: &Camera,
+        opts: &FitOptions,
+    ) -> CameraFit {
+        let fg = foreground(pic, size, size, 30.0, 4).unwrap();
+        fit_camera(
+            asm,
+            &FitPicture::new(pic, size, size).unwrap(),
+            &fg.mask,
+            init,
+            opts,
+            &MeshSource::builtin(),
+            &ColourTable::builtin(),
+        )
+        .unwrap()
+    }
+
     #[test]
     fn fit_recovers_a_perturbed_camera_to_a_fraction_of_a_pixel() {
         let asm = shape();
         let cam = truth();
         let size = 192;
         let pic = picture(&asm, &cam, size);
-        let fg = foreground(&pic, size, size, 30.0, 4).unwrap();
         let mut p = params_of(&cam);
         p[0] += 2.0;
         p[1] -= 2.5;
@@ -1757,16 +1777,7 @@ mod tests {
         p[5] -= 0.015;
         let init = camera_of(&p).unwrap();
         assert!(reprojection(&init, &cam, size) > 2.0);
-        let fit = fit_camera(
-            &asm,
-            &FitPicture::new(&pic, size, size).unwrap(),
-            &fg.mask,
-            &init,
-            &FitOptions::default(),
-            &MeshSource::builtin(),
-            &ColourTable::builtin(),
-        )
-        .unwrap();
+        let fit = fit_to(&asm, &pic, size, &init, &FitOptions::default());
         let err = reprojection(&fit.camera, &cam, size);
         assert!(err < 0.2, "reprojection error {err} px");
         assert!(fit.agree > 0.9 && fit.iou > 0.9, "{fit:?}");
@@ -1778,7 +1789,6 @@ mod tests {
         let cam = truth();
         let size = 160;
         let pic = picture(&asm, &cam, size);
-        let fg = foreground(&pic, size, size, 30.0, 4).unwrap();
         let mut p = params_of(&cam);
         p[0] += 1.5;
         p[3] += 0.02;
@@ -1789,18 +1799,7 @@ mod tests {
                 .num_threads(threads)
                 .build()
                 .unwrap();
-            pool.install(|| {
-                fit_camera(
-                    &asm,
-                    &FitPicture::new(&pic, size, size).unwrap(),
-                    &fg.mask,
-                    &init,
-                    &FitOptions::default(),
-                    &MeshSource::builtin(),
-                    &ColourTable::builtin(),
-                )
-                .unwrap()
-            })
+            pool.install(|| fit_to(&asm, &pic, size, &init, &FitOptions::default()))
         };
         let (one, three) = (fit_with(1), fit_with(3));
         assert_eq!(params_of(&one.camera), params_of(&three.camera));
