@@ -383,3 +383,47 @@ def test_init_weights_must_exist_and_fit(
     junk = str(tmp_path / "junk.safetensors")
     assert main([*data, "--out", str(tmp_path / "c"), "--init", junk]) == 2
     one_error_line(capsys, junk)
+
+
+class _Zeros(torch.utils.data.IterableDataset):
+    def __iter__(self):
+        while True:
+            yield torch.zeros(1)
+
+
+def _abort_at_exit(worker_id: int) -> None:
+    """worker_init_fn: worker 1 aborts as it exits, as one did on a GPU machine (SIGABRT,
+    "terminate called without an active exception") after a finished run's last checkpoint;
+    worker 0 takes a second to exit, so the abort comes while the loader waits for worker 0
+    (not for the aborting worker itself, which its join could reap first)."""
+    import multiprocessing.util
+    import time
+
+    if worker_id == 1:
+        multiprocessing.util.Finalize(None, os.abort, exitpriority=100)
+    else:
+        multiprocessing.util.Finalize(None, time.sleep, args=(1.0,), exitpriority=100)
+
+
+def test_a_worker_dying_as_the_workers_stop_is_a_note_not_a_traceback(
+    capsys: pytest.CaptureFixture[str],
+):
+    from mepnet.train.loop import Data
+    from torch.utils.data import DataLoader
+
+    loader = DataLoader(
+        _Zeros(),
+        batch_size=None,
+        num_workers=2,
+        worker_init_fn=_abort_at_exit,
+        persistent_workers=True,
+        multiprocessing_context="fork",
+    )
+    data = Data(loader, None, 0, 1)
+    batches = data.batches(0)
+    for _ in range(2):
+        assert next(batches).shape == (1,)
+    batches.close()
+    data.close()  # raised RuntimeError ("... killed by signal: Aborted") before
+    assert "ended abnormally" in capsys.readouterr().err
+    assert loader._iterator is None
