@@ -171,7 +171,7 @@ def test_killed_run_resumes_to_the_same_weights(tmp_path: Path, manuals: Path):
         assert torch.equal(ca[k], cb[k]), k
 
     def rows(run: str) -> list[dict]:
-        timing = ("samples_per_s", "seconds")
+        timing = ("samples_per_s", "data_wait_share", "seconds")
         doc = json.loads((tmp_path / run / "metrics.json").read_text())
         return [{k: v for k, v in r.items() if k not in timing} for r in doc]
 
@@ -188,6 +188,14 @@ def test_generated_data_resumes_and_ignores_worker_count(tmp_path: Path):
     plan += ["--generate-seeds", "50", "60"]
     a = train(*plan, "--out", str(tmp_path / "a"))
     assert a.returncode == 0, a.stderr
+    # with no data workers the manuals are generated between the steps: the log says the run
+    # mostly waited for data
+    shares = [
+        r["data_wait_share"] for r in json.loads((tmp_path / "a" / "metrics.json").read_text())
+    ]
+    assert len(shares) == 3 and all(0 <= x <= 1 for x in shares)
+    assert sum(shares) / len(shares) > 0.3, shares
+    assert "waiting for data" in a.stdout
     killed = train(*plan, "--out", str(tmp_path / "b"), "--debug-kill-at-step", "2")
     assert killed.returncode == -9, killed.stderr
     b = train("--resume", "--out", str(tmp_path / "b"), "--workers", "2")

@@ -394,13 +394,17 @@ def train(
     net.train()
     step = start
     t_window, paused = time.perf_counter(), 0.0
+    waited = 0.0  # seconds of the window spent waiting for the data workers' batches
     t_run = t_window
     batches = data.batches(start)
     window = state.window
     try:
         while step < total:
             # forward
-            batch = {k: v.to(d.device, non_blocking=True) for k, v in next(batches).items()}
+            t_wait = time.perf_counter()
+            host = next(batches)
+            waited += time.perf_counter() - t_wait
+            batch = {k: v.to(d.device, non_blocking=True) for k, v in host.items()}
             outputs = net(batch)
             loss, parts = total_loss(outputs, batch, model_cfg)
             if not torch.isfinite(loss):
@@ -439,14 +443,21 @@ def train(
                 row.update(zip(names, means, strict=True))
                 dt = time.perf_counter() - t_window - paused
                 row["samples_per_s"] = window["n"] * cfg.batch_size * d.world_size / max(dt, 1e-9)
+                # the share of the time the training process waited for data (this rank's): near
+                # 1, the data workers are the limit; near 0, the network is
+                row["data_wait_share"] = min(1.0, waited / max(dt, 1e-9))
                 state.last_train_loss = row["loss"]
                 window = state.window = _new_window()
-                t_window, paused = time.perf_counter(), 0.0
+                t_window, paused, waited = time.perf_counter(), 0.0, 0.0
                 if log is not None:
                     log.add(row)
                     bar.set_postfix(loss=f"{row['loss']:.4f}", lr=f"{row['lr']:.3g}")
                     if not cfg.progress:
-                        say(f"step {step}/{total} loss {row['loss']:.4f} lr {row['lr']:.3g}")
+                        say(
+                            f"step {step}/{total} loss {row['loss']:.4f} lr {row['lr']:.3g}"
+                            f" samples/s {row['samples_per_s']:.1f}"
+                            f" waiting for data {100 * row['data_wait_share']:.0f}%"
+                        )
 
             # validate (validation and checkpoints do not count as training time)
             t_pause = time.perf_counter()
