@@ -303,3 +303,32 @@ def test_errors_after_loading_name_the_manual_and_step(v2: Path):
     with pytest.raises(ManualFormatError) as e:
         run_manual(m, make_predictor("synthesis"))
     assert "step_004.png" in str(e.value) and f"{v2} step 4" in str(e.value)
+
+
+def test_a_generated_manual_held_in_memory_reads_as_written_and_loaded(tmp_path: Path):
+    """Training keeps its generated manuals in memory (no PNGs written and read back): every
+    step's picture, instance map, camera, callout and answers are those of the same manual
+    written by write_manual and read by load_manual; writing one writes no file."""
+    from mepnet import _brickgeom as _bg
+    from mepnet.manual import generated_manual, write_manual
+
+    m = _bg.synth_manual(1, {"image_size": 64, "components": (6, 10)})  # one submodule
+    held = generated_manual(m, {"kind": "synthetic", "seed": 1})
+    files = load_manual(write_manual(tmp_path / "m", m, {"kind": "synthetic"}, "mepnet.synth"))
+    assert held.submodules and len(held.submodules) == len(files.submodules)
+    assert held.parts == files.parts and held.image_size == files.image_size
+    pairs = list(zip(held.all_steps(), files.all_steps(), strict=True))
+    assert len(pairs) > 4
+    for a, b in pairs:
+        assert (a.index, a.camera, a.components) == (b.index, b.camera, b.components)
+        assert a.where.replace(str(held.path), str(files.path)) == b.where
+        ia, ib = a.image(), b.image()
+        assert ia.dtype == ib.dtype == np.uint8 and np.array_equal(ia, ib), a.where
+    ha, fa = answers_of(held), answers_of(files)
+    assert ha.shapes == fa.shapes
+    for hb, fb in zip([ha.main, *ha.submodules], [fa.main, *fa.submodules], strict=True):
+        assert hb.instances == fb.instances
+        for x, y in zip(hb.steps, fb.steps, strict=True):
+            assert (x.instances_of, x.views) == (y.instances_of, y.views)
+            assert x.ids().dtype == y.ids().dtype and np.array_equal(x.ids(), y.ids())
+    assert not Path(str(held.path)).exists()

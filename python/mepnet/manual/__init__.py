@@ -13,7 +13,14 @@ from mepnet.manual.answers import (
     SubmoduleShape,
     answers_of,
 )
-from mepnet.manual.io import iter_manual_dirs, load_manual, manual_json, strip_manual, write_manual
+from mepnet.manual.io import (
+    generated_manual,
+    iter_manual_dirs,
+    load_manual,
+    manual_json,
+    strip_manual,
+    write_manual,
+)
 from mepnet.manual.page import (
     MAIN_COLOUR,
     Build,
@@ -25,6 +32,7 @@ from mepnet.manual.page import (
 )
 
 __all__ = [
+    "generated_manual",
     "MAIN_COLOUR",
     "Answers",
     "Build",

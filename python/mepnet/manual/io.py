@@ -16,6 +16,7 @@ import json
 import math
 import os
 from collections.abc import Iterator
+from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath
 from typing import Any
 
@@ -607,16 +608,39 @@ def _png(path: Path, array: np.ndarray) -> None:
     Image.fromarray(array).save(path, format="PNG", compress_level=6)
 
 
+@dataclass
+class _HeldStep(Step):
+    """A step whose picture is held in memory (:func:`generated_manual`), not read from a file."""
+
+    pixels: np.ndarray | None = field(default=None, repr=False, compare=False)
+
+    def image(self) -> np.ndarray:
+        assert self.pixels is not None
+        return self.pixels.copy()
+
+
+@dataclass
+class _HeldStepAnswers(StepAnswers):
+    """Step answers whose instance map is held in memory (:func:`generated_manual`)."""
+
+    id_map: np.ndarray | None = field(default=None, repr=False, compare=False)
+
+    def ids(self) -> np.ndarray:
+        assert self.id_map is not None
+        return self.id_map.copy()
+
+
 def _generated_build(
     build: dict[str, Any],
-    tmp: Path,
+    tmp: Path | None,
     folder: Path,
     prefix: str,
     name: str,
     size: tuple[int, int],
 ) -> tuple[Build, BuildAnswers]:
     """Write a generated build's images into ``tmp`` (renamed to ``folder`` later); its page
-    and answers."""
+    and answers. With ``tmp`` None the pictures and instance maps stay in memory, in the steps
+    (:func:`generated_manual`)."""
 
     def ref(x: dict[str, Any]) -> ComponentRef:
         return (
@@ -632,41 +656,95 @@ def _generated_build(
     steps, answers = [], []
     for k, s in enumerate(build["steps"]):
         stem = f"{prefix}step_{k + 1:03d}"
-        _png(tmp / f"{stem}.png", s["rgb"])
-        _png(tmp / f"{stem}_ids.png", (s["ids"] + 1).astype(np.uint16))
+        if tmp is not None:
+            _png(tmp / f"{stem}.png", s["rgb"])
+            _png(tmp / f"{stem}_ids.png", (s["ids"] + 1).astype(np.uint16))
         entries: dict[tuple[ComponentRef, int], list[int]] = {}
         for i in s["instances"]:
             inst = instances[int(i)]
             colour = inst.colour if inst.component.part is not None else MAIN_COLOUR
             entries.setdefault((inst.component, colour), []).append(int(i))
+        page_kw: dict[str, Any] = {}
+        answers_kw: dict[str, Any] = {}
+        if tmp is None:
+            # what the files would read back as: (H, W, 3) uint8 and (H, W) int32, -1 outside
+            page_kw["pixels"] = np.ascontiguousarray(s["rgb"], dtype=np.uint8)
+            answers_kw["id_map"] = (np.asarray(s["ids"]) + 1).astype(np.uint16).astype(np.int32) - 1
         steps.append(
-            Step(
+            (Step if tmp is not None else _HeldStep)(
                 index=k + 1,
                 image_path=folder / f"{stem}.png",
                 camera=dict(s["camera"]),
                 components=[StepComponent(r, len(ids), c) for (r, c), ids in entries.items()],
                 size=size,
-                where=name,
+                # as load_manual names it
+                where=(
+                    f"{folder} step {k + 1}"
+                    if name == "main"
+                    else f"{folder} submodule {name} step {k + 1}"
+                ),
+                **page_kw,
             )
         )
         answers.append(
-            StepAnswers(
+            (StepAnswers if tmp is not None else _HeldStepAnswers)(
                 instances_of=list(entries.values()),
                 views=[
                     InstanceView(
                         id=int(i),
                         attach=str(a),
-                        keypoints=[(float(u), float(v)) for u, v in view["keypoints"]],
+                        # rounded as manual.json stores them: a manual held in memory reads
+                        # as the same manual written and loaded
+                        keypoints=[
+                            (round(float(u), 3), round(float(v), 3)) for u, v in view["keypoints"]
+                        ],
                         box=tuple(view["box"]) if view["box"] is not None else None,  # type: ignore[arg-type]
-                        visible_fraction=float(view["visible_fraction"]),
+                        visible_fraction=round(float(view["visible_fraction"]), 4),
                     )
                     for i, a, view in zip(s["instances"], s["attach"], s["views"], strict=True)
                 ],
                 ids_path=folder / f"{stem}_ids.png",
                 size=size,
+                **answers_kw,
             )
         )
     return Build(name, steps), BuildAnswers(instances, answers)
+
+
+def _generated(
+    manual: dict[str, Any], source: dict[str, Any], folder: Path, tmp: Path | None
+) -> Manual:
+    """The :class:`Manual` of a generated or converted manual dict, its pictures written into
+    ``tmp`` (or held in memory when ``tmp`` is None)."""
+    side = int(manual["image_size"])
+    size = (side, side)
+    main, main_ans = _generated_build(manual["main"], tmp, folder, "", "main", size)
+    subs, subs_ans, shapes = [], [], []
+    for k, s in enumerate(manual["submodules"]):
+        b, a = _generated_build(s["build"], tmp, folder, f"sub{k:02d}_", s["name"], size)
+        subs.append(b)
+        subs_ans.append(a)
+        shapes.append(
+            SubmoduleShape(
+                name=s["name"],
+                symmetry=int(s["symmetry"]),
+                topmost=[int(i) for i in s["topmost"]],
+                bricks=[
+                    (
+                        b2["part"],
+                        int(b2["yaw"]),
+                        tuple(int(v) for v in b2["t"]),
+                        int(b2["colour"]),
+                    )  # type: ignore[misc]
+                    for b2 in s["bricks"]
+                ],
+            )
+        )
+    parts = sorted(
+        {x.component.part for x in main_ans.instances if x.component.part is not None}
+        | {p for sh in shapes for p, *_ in sh.bricks}
+    )
+    return Manual(folder, source, size, parts, main, subs, Answers(main_ans, subs_ans, shapes))  # type: ignore[arg-type]
 
 
 def write_manual(
@@ -676,38 +754,18 @@ def write_manual(
     ``render_plan``) to ``folder`` atomically (:func:`mepnet.files.atomic_folder`; ``folder``
     must not exist)."""
     folder = Path(folder)
-    side = int(manual["image_size"])
-    size = (side, side)
     with atomic_folder(folder, writer, replace=False) as tmp:
-        main, main_ans = _generated_build(manual["main"], tmp, folder, "", "main", size)
-        subs, subs_ans, shapes = [], [], []
-        for k, s in enumerate(manual["submodules"]):
-            b, a = _generated_build(s["build"], tmp, folder, f"sub{k:02d}_", s["name"], size)
-            subs.append(b)
-            subs_ans.append(a)
-            shapes.append(
-                SubmoduleShape(
-                    name=s["name"],
-                    symmetry=int(s["symmetry"]),
-                    topmost=[int(i) for i in s["topmost"]],
-                    bricks=[
-                        (
-                            b2["part"],
-                            int(b2["yaw"]),
-                            tuple(int(v) for v in b2["t"]),
-                            int(b2["colour"]),
-                        )  # type: ignore[misc]
-                        for b2 in s["bricks"]
-                    ],
-                )
-            )
-        parts = sorted(
-            {x.component.part for x in main_ans.instances if x.component.part is not None}
-            | {p for sh in shapes for p, *_ in sh.bricks}
-        )
-        m = Manual(folder, source, size, parts, main, subs, Answers(main_ans, subs_ans, shapes))  # type: ignore[arg-type]
+        m = _generated(manual, source, folder, tmp)
         (tmp / "manual.json").write_text(json.dumps(manual_json(m), indent=1) + "\n")
     return folder
+
+
+def generated_manual(manual: dict[str, Any], source: dict[str, Any]) -> Manual:
+    """A generated manual (the dict of ``_brickgeom.synth_manual``) as the :class:`Manual`
+    that :func:`write_manual` then :func:`load_manual` give, held in memory: no files are
+    written, the steps carry their pictures and instance maps (for training, which reads each
+    generated manual once). Its ``path`` and image paths name no files."""
+    return _generated(manual, source, Path("<generated>"), None)
 
 
 def strip_manual(
