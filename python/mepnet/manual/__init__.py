@@ -32,7 +32,6 @@ from mepnet.manual.page import (
 )
 
 __all__ = [
-    "generated_manual",
     "MAIN_COLOUR",
     "Answers",
     "Build",
@@ -48,6 +47,7 @@ __all__ = [
     "StepTruth",
     "SubmoduleShape",
     "answers_of",
+    "generated_manual",
     "iter_manual_dirs",
     "load_manual",
     "make_camera",

@@ -265,11 +265,7 @@ class _Reader:
     def _step(
         self, a: _At, s: dict[str, Any], k: int, comps: list[StepComponent], name: str
     ) -> Step:
-        where = (
-            f"{self.folder} step {k + 1}"
-            if name == "main"
-            else f"{self.folder} submodule {name} step {k + 1}"
-        )
+        where = _step_where(self.folder, name, k)
         return Step(
             index=k + 1,
             image_path=a.file(self.folder, a.get(s, "image"), "image"),
@@ -608,6 +604,13 @@ def _png(path: Path, array: np.ndarray) -> None:
     Image.fromarray(array).save(path, format="PNG", compress_level=6)
 
 
+def _step_where(folder: Path, build: str, k: int) -> str:
+    """How messages name step ``k`` (0-based) of build ``build`` ("main" or a submodule's)."""
+    if build == "main":
+        return f"{folder} step {k + 1}"
+    return f"{folder} submodule {build} step {k + 1}"
+
+
 @dataclass
 class _HeldStep(Step):
     """A step whose picture is held in memory (:func:`generated_manual`), not read from a file."""
@@ -656,58 +659,47 @@ def _generated_build(
     steps, answers = [], []
     for k, s in enumerate(build["steps"]):
         stem = f"{prefix}step_{k + 1:03d}"
+        ids16 = (np.asarray(s["ids"]) + 1).astype(np.uint16)  # as the instance map file holds it
         if tmp is not None:
             _png(tmp / f"{stem}.png", s["rgb"])
-            _png(tmp / f"{stem}_ids.png", (s["ids"] + 1).astype(np.uint16))
+            _png(tmp / f"{stem}_ids.png", ids16)
         entries: dict[tuple[ComponentRef, int], list[int]] = {}
         for i in s["instances"]:
             inst = instances[int(i)]
             colour = inst.colour if inst.component.part is not None else MAIN_COLOUR
             entries.setdefault((inst.component, colour), []).append(int(i))
-        page_kw: dict[str, Any] = {}
-        answers_kw: dict[str, Any] = {}
-        if tmp is None:
-            # what the files would read back as: (H, W, 3) uint8 and (H, W) int32, -1 outside
-            page_kw["pixels"] = np.ascontiguousarray(s["rgb"], dtype=np.uint8)
-            answers_kw["id_map"] = (np.asarray(s["ids"]) + 1).astype(np.uint16).astype(np.int32) - 1
-        steps.append(
-            (Step if tmp is not None else _HeldStep)(
-                index=k + 1,
-                image_path=folder / f"{stem}.png",
-                camera=dict(s["camera"]),
-                components=[StepComponent(r, len(ids), c) for (r, c), ids in entries.items()],
-                size=size,
-                # as load_manual names it
-                where=(
-                    f"{folder} step {k + 1}"
-                    if name == "main"
-                    else f"{folder} submodule {name} step {k + 1}"
-                ),
-                **page_kw,
-            )
+        page = Step(
+            index=k + 1,
+            image_path=folder / f"{stem}.png",
+            camera=dict(s["camera"]),
+            components=[StepComponent(r, len(ids), c) for (r, c), ids in entries.items()],
+            size=size,
+            where=_step_where(folder, name, k),
         )
-        answers.append(
-            (StepAnswers if tmp is not None else _HeldStepAnswers)(
-                instances_of=list(entries.values()),
-                views=[
-                    InstanceView(
-                        id=int(i),
-                        attach=str(a),
-                        # rounded as manual.json stores them: a manual held in memory reads
-                        # as the same manual written and loaded
-                        keypoints=[
-                            (round(float(u), 3), round(float(v), 3)) for u, v in view["keypoints"]
-                        ],
-                        box=tuple(view["box"]) if view["box"] is not None else None,  # type: ignore[arg-type]
-                        visible_fraction=round(float(view["visible_fraction"]), 4),
-                    )
-                    for i, a, view in zip(s["instances"], s["attach"], s["views"], strict=True)
-                ],
-                ids_path=folder / f"{stem}_ids.png",
-                size=size,
-                **answers_kw,
-            )
+        ans = StepAnswers(
+            instances_of=list(entries.values()),
+            views=[
+                InstanceView(
+                    id=int(i),
+                    attach=str(a),
+                    # rounded as manual.json stores them: a manual held in memory reads
+                    # as the same manual written and loaded
+                    keypoints=[
+                        (round(float(u), 3), round(float(v), 3)) for u, v in view["keypoints"]
+                    ],
+                    box=tuple(view["box"]) if view["box"] is not None else None,  # type: ignore[arg-type]
+                    visible_fraction=round(float(view["visible_fraction"]), 4),
+                )
+                for i, a, view in zip(s["instances"], s["attach"], s["views"], strict=True)
+            ],
+            ids_path=folder / f"{stem}_ids.png",
+            size=size,
         )
+        if tmp is None:  # what the files would read back as: uint8 RGB, int32 ids (-1 outside)
+            page = _HeldStep(**vars(page), pixels=np.ascontiguousarray(s["rgb"], dtype=np.uint8))
+            ans = _HeldStepAnswers(**vars(ans), id_map=ids16.astype(np.int32) - 1)
+        steps.append(page)
+        answers.append(ans)
     return Build(name, steps), BuildAnswers(instances, answers)
 
 
