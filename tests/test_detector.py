@@ -3,12 +3,13 @@ brickgeom's renderer, targets, losses, decoding, and config round trips."""
 
 from __future__ import annotations
 
+import contextlib
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
-from conftest import generate_manuals
+from conftest import generate_manuals, plain_network
 from mepnet import _brickgeom as _bg
 from mepnet.detector.config import ModelConfig
 from mepnet.detector.decode import decode
@@ -319,3 +320,49 @@ def test_one_slot_per_component_type_whatever_its_colours(tmp_path):
             assert int(s.tensors["inst_valid"].sum()) == min(st.n_instances, 10)
             assert int(s.tensors["comp_valid"].sum()) == min(len(slots), 5)
     assert found, "no step with one part in two colours (the case under test)"
+
+
+def test_shortcuts_in_the_network_compute_the_plain_function(manual):
+    """The component encoder encodes each distinct grid once (batch-norm statistics counted by
+    occurrence) and the stem's first conv skips input gradients it never needs: outputs,
+    gradients and running statistics must be those of the plain network, in training and in
+    evaluation."""
+    import copy
+
+    cfg = ModelConfig.tiny()
+    torch.manual_seed(0)
+    fast = build_model(cfg).train()
+    plain = copy.deepcopy(fast)
+
+    samples = [
+        training_sample(manual, (None, k), cfg, augment=True, rng=np.random.default_rng(k))
+        for k in range(4)
+    ]
+    batch = collate(samples)
+    # the shortcut has something to deduplicate: empty slots and at least one repeated grid
+    grids = batch["comp_voxels"].flatten(0, 1).flatten(1)
+    assert len(torch.unique(grids, dim=0)) < len(grids)
+
+    def run(model, reference, backward=True):
+        with plain_network() if reference else contextlib.nullcontext():
+            out = model(batch)
+            if backward:
+                loss, _ = total_loss(out, batch, cfg)
+                model.zero_grad()
+                loss.backward()
+        return out
+
+    a, b = run(fast, False), run(plain, True)
+    for key in a:
+        assert torch.allclose(a[key], b[key], atol=1e-4, rtol=1e-4), key
+    for (name, p), (_, q) in zip(fast.named_parameters(), plain.named_parameters(), strict=True):
+        assert p.grad is not None and q.grad is not None, name
+        assert torch.allclose(p.grad, q.grad, atol=1e-4, rtol=1e-3), name
+    for (name, p), (_, q) in zip(fast.named_buffers(), plain.named_buffers(), strict=True):
+        assert torch.allclose(p.float(), q.float(), atol=1e-5, rtol=1e-4), name
+    fast.eval()
+    plain.eval()
+    with torch.no_grad():
+        a, b = run(fast, False, False), run(plain, True, False)
+    for key in a:
+        assert torch.allclose(a[key], b[key], atol=1e-5, rtol=1e-4), key

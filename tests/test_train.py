@@ -378,6 +378,28 @@ def test_init_fine_tunes_from_given_weights(finished: Path, tmp_path: Path, manu
     assert saved["init"] == str(init)
 
 
+def test_bf16_training_follows_fp32(finished: Path, tmp_path: Path, manuals: Path):
+    """--precision bf16 runs the passes in bfloat16 (the weights end up other than fp32's from
+    the same start and data) and trains the same network (they differ by far less than the
+    steps moved them); a bad precision is one line, exit 2."""
+    init = finished / "model.safetensors"
+    got = {}
+    for p in ("fp32", "bf16"):
+        out = tmp_path / p
+        r = train("--data", str(manuals / "train"), "--steps", "3", "--lr", "1e-3", "--seed", "5",
+                  "--init", str(init), "--precision", p, "--out", str(out))  # fmt: skip
+        assert r.returncode == 0, r.stderr
+        got[p] = dict(load_model(out / "model.safetensors")[0].named_parameters())
+        assert json.loads((out / "config.json").read_text())["train"]["precision"] == p
+    start = dict(load_model(init)[0].named_parameters())
+    moved = torch.cat([(got["fp32"][k] - v).flatten() for k, v in start.items()]).norm()
+    apart = torch.cat([(got["bf16"][k] - got["fp32"][k]).flatten() for k in start]).norm()
+    assert 0 < apart < 0.5 * moved, (float(apart), float(moved))
+    r = train("--data", str(manuals / "train"), "--steps", "1", "--precision", "fp16",
+              "--out", str(tmp_path / "bad"))  # fmt: skip
+    assert r.returncode == 2 and r.stderr.count("\n") == 1 and "precision" in r.stderr, r.stderr
+
+
 def test_init_weights_must_exist_and_fit(
     finished: Path, tmp_path: Path, manuals: Path, capsys: pytest.CaptureFixture[str]
 ):

@@ -31,7 +31,7 @@ import torch.nn.functional as F
 sys.path.insert(0, os.path.dirname(__file__))
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 from bench_geom import replace_section  # noqa: E402
-from conftest import generate_manuals  # noqa: E402
+from conftest import generate_manuals, plain_network  # noqa: E402
 from mepnet.detector.config import ModelConfig  # noqa: E402
 from mepnet.detector.losses import total_loss  # noqa: E402
 from mepnet.detector.net import build_model  # noqa: E402
@@ -113,13 +113,26 @@ def main(argv: list[str] | None = None) -> int:
         net = build_model(cfg).train()
         opt = torch.optim.AdamW(net.parameters(), lr=1e-4)
 
-        def train_step() -> None:
-            loss, _ = total_loss(net(batch), batch, cfg)
+        def train_step(bf16: bool = False) -> None:
+            # as mepnet.train's loop does it
+            with torch.autocast("cpu", dtype=torch.bfloat16, enabled=bf16):
+                out = net(batch)
+            loss, _ = total_loss({k: v.float() for k, v in out.items()}, batch, cfg)
             opt.zero_grad()
             loss.backward()
             opt.step()
 
-        step_s = timed(train_step, args.repeat)
+        def plain_step() -> None:
+            with plain_network():
+                train_step()
+
+        # interleaved, so that the machine's load falls on all three alike
+        times: dict[str, list[float]] = {"plain": [], "fp32": [], "bf16": []}
+        for _ in range(args.repeat):
+            times["plain"].append(timed(plain_step, 1))
+            times["fp32"].append(timed(train_step, 1))
+            times["bf16"].append(timed(lambda: train_step(True), 1))
+        plain_s, fp32_s, step_s = (float(np.median(times[k])) for k in ("plain", "fp32", "bf16"))
 
         convs = torch.nn.Sequential(
             torch.nn.Conv3d(1, cfg.state_channels, 3, 1, 1),
@@ -168,12 +181,17 @@ def main(argv: list[str] | None = None) -> int:
             "",
             "| measure | ours | reference | ratio |",
             "|---|---:|---:|---:|",
-            f"| training step, batch {b} (forward + backward + AdamW) | {step_s:.3f} s "
-            f"({b / step_s:.1f} samples/s) | - | - |",
+            f"| training step, batch {b} (forward + backward + AdamW), `--precision bf16` | "
+            f"{step_s:.3f} s ({b / step_s:.1f} samples/s) | {plain_s:.3f} s (plain network, "
+            f"fp32) | {plain_s / step_s:.2f}x |",
+            f"| training step, batch {b}, `--precision fp32` | {fp32_s:.3f} s "
+            f"({b / fp32_s:.1f} samples/s) | {plain_s:.3f} s (plain network, fp32) | "
+            f"{plain_s / fp32_s:.2f}x |",
             f"| sample preparation (read, augment, render state, targets) | {data_s * 1e3:.1f} ms "
             f"| - | - |",
             f"| training end to end, one process, data in line | "
-            f"{b / (step_s + b * data_s):.1f} samples/s | - | - |",
+            f"{b / (step_s + b * data_s):.1f} samples/s | {b / (plain_s + b * data_s):.1f} "
+            f"samples/s | {(plain_s + b * data_s) / (step_s + b * data_s):.2f}x |",
             f"| state encoder, forward + backward, batch {b} | {ours_state_s * 1e3:.0f} ms "
             f"(first-hit gather) | {ref_state_s * 1e3:.0f} ms (soft ray marching) | "
             f"{ref_state_s / ours_state_s:.1f}x |",
@@ -184,7 +202,10 @@ def main(argv: list[str] | None = None) -> int:
             "",
             "Target: <= 0.3 s per step for detector + stage 2 on a 2-core CPU (the paper: 0.311 "
             "s on a GPU). oracle-abys is given ground-truth instance masks, the detector nothing "
-            "but the manual.",
+            "but the manual. The plain network is the same network without its shortcuts "
+            "(every component slot encoded, the stem's input gradients for all its channels: "
+            "`tests/conftest.py`'s `plain_network`, what training ran before); medians of "
+            f"{args.repeat} interleaved steps each.",
         ]
     )
     replace_section(args.out, "bench_detector", body)

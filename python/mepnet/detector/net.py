@@ -120,8 +120,47 @@ class ComponentEncoder(nn.Module):
     def forward(self, vox: torch.Tensor, valid: torch.Tensor) -> torch.Tensor:
         # vox: (B, K, 1, cz, cy, cx); valid: (B, K) -> (B, K, C2), zero for empty slots
         b, k = vox.shape[:2]
-        f = self.convs(vox.flatten(0, 1)).mean(dim=(2, 3, 4)).view(b, k, -1)
+        # A batch holds few distinct grids (most slots are empty, common parts repeat): each
+        # is encoded once, its batch-norm statistics counted as often as it occurs, so the
+        # result is the function of the whole batch (tests/test_detector.py).
+        flat = vox.flatten(0, 1)
+        grids, inverse, counts = torch.unique(
+            flat.flatten(1), dim=0, return_inverse=True, return_counts=True
+        )
+        x = grids.view(-1, *flat.shape[1:])
+        for layer in self.convs:
+            conv, bn, relu = layer
+            x = relu(_counted_batch_norm(bn, conv(x), counts))
+        f = x.mean(dim=(2, 3, 4))[inverse].view(b, k, -1)
         return f * valid[..., None]
+
+
+def _counted_batch_norm(
+    bn: nn.modules.batchnorm._BatchNorm, x: torch.Tensor, counts: torch.Tensor
+) -> torch.Tensor:
+    """``bn`` applied to a batch in which sample ``i`` of ``x`` occurs ``counts[i]`` times, as
+    ``bn`` on that batch would (its running statistics updated alike in training)."""
+    if not (bn.training or bn.running_mean is None):
+        return bn(x)
+    w = counts.to(torch.float32).view(-1, *([1] * (x.ndim - 1)))
+    per = x[0, 0].numel()
+    n = float(counts.sum()) * per
+    xf = x.to(torch.float32)
+    dims = [0] + list(range(2, x.ndim))
+    mean = (xf * w).sum(dim=dims) / n
+    shape = (1, -1) + (1,) * (x.ndim - 2)
+    var = ((xf - mean.view(shape)) ** 2 * w).sum(dim=dims) / n
+    if bn.training and bn.track_running_stats and bn.running_mean is not None:
+        assert bn.running_var is not None and bn.num_batches_tracked is not None
+        with torch.no_grad():
+            bn.num_batches_tracked += 1
+            m = bn.momentum if bn.momentum is not None else 1 / float(bn.num_batches_tracked)
+            bn.running_mean.mul_(1 - m).add_(mean.detach(), alpha=m)
+            bn.running_var.mul_(1 - m).add_(var.detach() * n / max(n - 1, 1), alpha=m)
+    y = (xf - mean.view(shape)) * torch.rsqrt(var.view(shape) + bn.eps)
+    if bn.affine:
+        y = y * bn.weight.view(shape) + bn.bias.view(shape)
+    return y.to(x.dtype)
 
 
 class Hourglass(nn.Module):
@@ -198,13 +237,30 @@ class Trunk(nn.Module):
         )
         self.inter = nn.ModuleList([nn.Conv2d(c, c, 1) for _ in range(hg_stacks - 1)])
 
+    def _stem_in(
+        self, image: torch.Tensor, maps: torch.Tensor, state: torch.Tensor, planes: torch.Tensor
+    ) -> torch.Tensor:
+        """The stem's first conv-BN-ReLU on the channels ``[image, maps, state, planes]``. The
+        conv is linear in its input channels, so it runs as two: the state features, the only
+        input with a gradient, apart from the rest, whose input gradient is never needed (a
+        third of a training step's backward pass otherwise)."""
+        conv, rest = self.stem[0][0], self.stem[0][1:]
+        if not state.requires_grad:
+            return rest(conv(torch.cat([image, maps, state, planes], dim=1)))
+        w = conv.weight
+        a, b = image.shape[1] + maps.shape[1], image.shape[1] + maps.shape[1] + state.shape[1]
+        fixed = torch.cat([image, maps, planes], dim=1)
+        y = F.conv2d(fixed, torch.cat([w[:, :a], w[:, b:]], dim=1), None, conv.stride, conv.padding)
+        y = y + F.conv2d(state, w[:, a:b], conv.bias, conv.stride, conv.padding)
+        return rest(y)
+
     def features(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
         """The hourglass output, (B, c, h, w)."""
         image = batch["image"]  # (B, 4, H, W)
         state = self.state(batch["base_voxels"], batch["state_index"])  # (B, C1, H, W)
         emb = self.components(batch["comp_voxels"], batch["comp_valid"])  # (B, K, C2)
         planes = camera_planes(batch["camera"], image.shape[2:])
-        x = self.stem(torch.cat([image, batch["state_maps"], state, planes], dim=1))  # (B, c, h, w)
+        x = self.stem[1:](self._stem_in(image, batch["state_maps"], state, planes))  # (B, c, h, w)
         cond = emb.flatten(1)  # (B, K * C2)
         for i, hg in enumerate(self.stacks):
             y = hg(x, cond)

@@ -33,6 +33,7 @@ from mepnet.files import MANIFEST, atomic_write_json
 from mepnet.stage2.base import LIFTS
 from mepnet.train.checkpoint import check_training_state, load_checkpoint
 from mepnet.train.config import (
+    PRECISIONS,
     TrainConfig,
     check_resumable,
     config_diff,
@@ -78,6 +79,7 @@ CHOICES = {
     "device": ("auto", "cpu", "cuda"),
     "val_lift": LIFTS,
     "head": HEADS,
+    "precision": PRECISIONS,
 }
 
 

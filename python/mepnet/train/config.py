@@ -19,6 +19,9 @@ from mepnet.manual import iter_manual_dirs, load_manual
 from mepnet.stage2.base import LIFTS
 from mepnet.synth import check_generator_settings, read_generator_settings
 
+#: ``--precision`` choices.
+PRECISIONS = ("fp32", "bf16")
+
 
 def _f(default: Any, help: str, resumable: bool = False) -> Any:
     """A config field with its command-line help; ``resumable`` fields may change on --resume."""
@@ -83,6 +86,13 @@ class TrainConfig:
     seed: int = _f(0, "seed of initialisation, data order and augmentation")
     device: str = _f("auto", "auto, cpu or cuda", resumable=True)
     threads: int = _f(0, "torch CPU threads per process (0: torch's default)", resumable=True)
+    precision: str = _f(
+        "fp32",
+        "arithmetic of the forward and backward passes: fp32, or bf16 (autocast: convolutions "
+        "in bfloat16; weights, batch-norm statistics, losses and the optimizer in float32; "
+        "about 1.6x faster on CPUs with avx512_bf16 or AMX and on GPUs; validation stays fp32)",
+        resumable=True,
+    )
     progress: bool = _f(True, "progress bar", resumable=True)
 
     def __post_init__(self) -> None:
@@ -221,6 +231,8 @@ def validate(cfg: TrainConfig) -> None:
         raise ConfigError(f"--val-lift must be {' or '.join(LIFTS)}, got {cfg.val_lift!r}")
     if cfg.init is not None and not Path(cfg.init).is_file():
         raise ConfigError(f"{cfg.init}: no such weights file (--init)")
+    if cfg.precision not in PRECISIONS:
+        raise ConfigError(f"--precision must be {' or '.join(PRECISIONS)}, got {cfg.precision!r}")
     if cfg.device not in ("auto", "cpu", "cuda"):
         raise ConfigError(f"--device must be auto, cpu or cuda, got {cfg.device!r}")
     if cfg.device == "cuda" and not torch.cuda.is_available():

@@ -300,6 +300,14 @@ def train(
     cuda = d.device.type == "cuda"
     if cfg.threads:
         torch.set_num_threads(cfg.threads)
+    bf16 = cfg.precision == "bf16"
+    if (
+        bf16
+        and d.main
+        and d.device.type == "cpu"
+        and not torch.ops.mkldnn._is_mkldnn_bf16_supported()
+    ):
+        note("--precision bf16: this CPU has no bfloat16 instructions; emulated, slower than fp32")
 
     # --- set-up: model, optimizer, data, schedule, resume --------------------------------------
     torch.manual_seed(cfg.seed)  # the same initial weights on every rank
@@ -405,7 +413,9 @@ def train(
             host = next(batches)
             waited += time.perf_counter() - t_wait
             batch = {k: v.to(d.device, non_blocking=True) for k, v in host.items()}
-            outputs = net(batch)
+            with torch.autocast(d.device.type, dtype=torch.bfloat16, enabled=bf16):
+                outputs = net(batch)
+            outputs = {k: v.float() for k, v in outputs.items()}  # the losses in float32
             loss, parts = total_loss(outputs, batch, model_cfg)
             if not torch.isfinite(loss):
                 raise FloatingPointError(f"the loss is {loss.item()} at step {step + 1}")
