@@ -243,3 +243,33 @@ def test_a_single_part_is_revisited_when_it_explains_the_change_poorly(
     monkeypatch.setattr(synthesis, "FIRST_CHOICES", 1)  # the greedy alone
     (q,) = synthesize(ctx, types, picture=picture, tone=tone)
     assert not comp.same_placement(q.yaw, q.t, truth.yaw, truth.t)  # drawn to the decoy
+
+
+def test_pruned_placement_ranking_equals_scoring_every_placement(tmp_path: Path):
+    """``abys_ranked`` skips placements whose bound (the share of the mask inside their drawn
+    box) cannot enter the ranking: on generated steps, with each new instance's true mask, the
+    whole step's change and a mask shifted off it, it ranks as scoring every placement does."""
+    from conftest import generate_manuals
+    from mepnet import _brickgeom as _bg
+    from mepnet.manual import answers_of
+
+    m = load_manual(generate_manuals(tmp_path, 1, 900003, size=128) / "manual_00900003")
+    answers = answers_of(m)
+    comps = answers.components(m)
+    checked = 0
+    for k, step in enumerate(m.main.steps[:12]):
+        base = answers.main.assembly_before(k, comps)
+        truth = answers.main.truth(k)
+        ids = truth.ids()
+        new = truth.placed()
+        cam = step.camera_object()
+        changed = np.isin(ids, [i.id for i in new])
+        for inst in new:
+            own = ids == inst.id
+            for mask in (own, changed, np.roll(own, 7, axis=1)):
+                for wide in (False, True):
+                    args = (base, cam, 128, 128, comps[inst.component], mask, 8, 60.0, wide)
+                    pruned = _bg.abys_ranked(*args)
+                    assert pruned == _bg.abys_ranked(*args, exhaustive=True), (k, inst.id)
+                    checked += 1
+    assert checked >= 60

@@ -416,6 +416,7 @@ def abys_ranked(
     k: int = 8,
     time_limit_s: float = 60.0,
     wide_ground: bool = False,
+    exhaustive: bool = False,
 ) -> tuple[list[tuple[int, _Int3, float]], bool]: ...
 def abys_step(
     base: Assembly,

@@ -1,8 +1,8 @@
 //! Stage 2 (pose inference, `brickgeom::stage2`) and the analysis-by-synthesis baseline.
 
 use brickgeom::stage2::{
-    abys_ranked, abys_step, infer_step, rotation_class, Detection, InferOptions,
-    InstancePrediction, TypeDetections,
+    abys_ranked, abys_ranked_exhaustive, abys_step, infer_step, rotation_class, Detection,
+    InferOptions, InstancePrediction, TypeDetections,
 };
 use numpy::{PyReadonlyArray1, PyReadonlyArray2, PyReadonlyArray3};
 use pyo3::exceptions::PyValueError;
@@ -265,9 +265,11 @@ fn abys_step_py<'py>(
 /// The `k` valid placements of `component` on `base` whose visible silhouettes best match
 /// `mask` (H, W) bool by IoU, best first: `([(yaw, t, iou), ...], timed_out)`. The ground is
 /// searched beside the base; with `wide_ground` also wherever the part may be seen in `mask`
-/// (a placement standing away from the base scores its IoU less `DETACHED_PENALTY`).
+/// (a placement standing away from the base scores its IoU less `DETACHED_PENALTY`). Placements
+/// that cannot enter the ranking are skipped (the share of the mask inside their drawn box
+/// bounds their IoU); `exhaustive` scores every one, the reference (tests, benchmarks).
 #[pyfunction(name = "abys_ranked")]
-#[pyo3(signature = (base, camera, width, height, component, mask, k=8, time_limit_s=60.0, wide_ground=false))]
+#[pyo3(signature = (base, camera, width, height, component, mask, k=8, time_limit_s=60.0, wide_ground=false, exhaustive=false))]
 #[allow(clippy::too_many_arguments, clippy::type_complexity)]
 fn abys_ranked_py<'py>(
     py: Python<'py>,
@@ -280,6 +282,7 @@ fn abys_ranked_py<'py>(
     k: usize,
     time_limit_s: f64,
     wide_ground: bool,
+    exhaustive: bool,
 ) -> PyResult<(Vec<(u8, (i32, i32, i32), f64)>, bool)> {
     if time_limit_s.is_nan() || time_limit_s <= 0.0 {
         return Err(PyValueError::new_err(format!(
@@ -290,8 +293,13 @@ fn abys_ranked_py<'py>(
     let comp = component.get().inner.clone();
     let asm = &base.inner;
     let cam = camera.inner;
+    let rank = if exhaustive {
+        abys_ranked_exhaustive
+    } else {
+        abys_ranked
+    };
     let (ranked, timed_out) = detach_core(py, || {
-        abys_ranked(
+        rank(
             asm,
             &comp,
             &cam,

@@ -687,11 +687,109 @@ fn mask_box(mask: &[bool], width: u32) -> Option<[usize; 4]> {
 /// unless the picture clearly says otherwise.
 pub const DETACHED_PENALTY: f64 = 0.15;
 
+/// An upper bound on a placement's mask IoU (`abys_ranked`): the mask pixels inside the box its
+/// meshes project to (widened by a pixel against rounding), over the mask's area. Its visible
+/// pixels lie in that box and the IoU is at most their overlap with the mask over the mask.
+struct ScoreBound {
+    /// Summed-area table of the mask, `(w + 1) * (h + 1)`.
+    sums: Vec<u32>,
+    w: usize,
+    h: usize,
+    area: f64,
+    /// Per yaw, the projected box `[x0, y0, x1, y1]` of the component at translation zero.
+    boxes: [[f64; 4]; 4],
+    /// Pixels moved by one lattice unit along x, y and z: `[[dx, dy]; 3]`.
+    step: [[f64; 2]; 3],
+}
+
+impl ScoreBound {
+    fn new(
+        comp: &Component,
+        camera: &Camera,
+        width: u32,
+        height: u32,
+        target: &MaskTarget,
+    ) -> Self {
+        let (w, h) = (width as usize, height as usize);
+        let mut sums = vec![0u32; (w + 1) * (h + 1)];
+        for y in 0..h {
+            let mut row = 0u32;
+            for x in 0..w {
+                row += target.mask[y * w + x] as u32;
+                sums[(y + 1) * (w + 1) + x + 1] = sums[y * (w + 1) + x + 1] + row;
+            }
+        }
+        let m = camera.pixel_matrix(width, height);
+        let px = |v: [f32; 3]| -> [f64; 2] {
+            let (x, y, z) = (v[0] as f64, v[1] as f64, v[2] as f64);
+            [
+                m[(0, 0)] * x + m[(0, 1)] * y + m[(0, 2)] * z + m[(0, 3)],
+                m[(1, 0)] * x + m[(1, 1)] * y + m[(1, 2)] * z + m[(1, 3)],
+            ]
+        };
+        let mut boxes = [[
+            f64::INFINITY,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::NEG_INFINITY,
+        ]; 4];
+        for (yaw, b) in boxes.iter_mut().enumerate() {
+            let at = Pose::new(yaw as u8, [0, 0, 0]);
+            for (mesh, p) in brick_meshes(comp) {
+                let pose = at.compose(&p);
+                for v in &mesh.vertices {
+                    let [x, y] = px(pose.apply_ldu(*v));
+                    *b = [b[0].min(x), b[1].min(y), b[2].max(x), b[3].max(y)];
+                }
+            }
+        }
+        let origin = px([0.0; 3]);
+        let step = [0, 1, 2].map(|a| {
+            let mut t = [0; 3];
+            t[a] = 1;
+            let q = px(Pose::new(0, t).apply_ldu([0.0; 3]));
+            [q[0] - origin[0], q[1] - origin[1]]
+        });
+        ScoreBound {
+            sums,
+            w,
+            h,
+            area: target.mask_area as f64,
+            boxes,
+            step,
+        }
+    }
+
+    /// The bound for a placement at `pose`: 1 when the mask is empty (no pruning).
+    fn of(&self, pose: &Pose) -> f64 {
+        if self.area == 0.0 {
+            return 1.0;
+        }
+        let b = self.boxes[pose.yaw as usize % 4];
+        let t = pose.t.map(|v| v as f64);
+        let dx = self.step[0][0] * t[0] + self.step[1][0] * t[1] + self.step[2][0] * t[2];
+        let dy = self.step[0][1] * t[0] + self.step[1][1] * t[1] + self.step[2][1] * t[2];
+        let clamp = |v: f64, n: usize| (v.max(0.0) as usize).min(n);
+        let x0 = clamp((b[0] + dx).floor() - 1.0, self.w);
+        let y0 = clamp((b[1] + dy).floor() - 1.0, self.h);
+        let x1 = clamp((b[2] + dx).ceil() + 1.0, self.w);
+        let y1 = clamp((b[3] + dy).ceil() + 1.0, self.h);
+        if x1 <= x0 || y1 <= y0 {
+            return 0.0;
+        }
+        let s = |x: usize, y: usize| self.sums[y * (self.w + 1) + x] as i64;
+        let inside = s(x1, y1) - s(x0, y1) - s(x1, y0) + s(x0, y0);
+        inside as f64 / self.area
+    }
+}
+
 /// The `k` valid placements of `comp` on `base` whose visible silhouettes best match `mask`
 /// (IoU; less [`DETACHED_PENALTY`] for a placement standing on the ground away from the base),
 /// best first (ties: smaller pose), and whether the time limit cut the search short. On a
 /// non-empty base the ground is searched beside the base, and with `wide_ground` also wherever
-/// the part may be seen in `mask` ([`ground_search`]).
+/// the part may be seen in `mask` ([`ground_search`]). Placements are scored most promising
+/// first ([`ScoreBound`]) and the search stops once none left can enter the ranking: the
+/// result is [`abys_ranked_exhaustive`]'s, which scores them all.
 #[allow(clippy::too_many_arguments)]
 pub fn abys_ranked(
     base: &Assembly,
@@ -703,6 +801,61 @@ pub fn abys_ranked(
     k: usize,
     time_limit_s: f64,
     wide_ground: bool,
+) -> Result<(Vec<(Pose, f64)>, bool)> {
+    ranked(
+        base,
+        comp,
+        camera,
+        width,
+        height,
+        mask,
+        k,
+        time_limit_s,
+        wide_ground,
+        true,
+    )
+}
+
+/// [`abys_ranked`] scoring every valid placement, none skipped by its bound: the reference the
+/// pruned search must equal (tests, benchmarks).
+#[allow(clippy::too_many_arguments)]
+pub fn abys_ranked_exhaustive(
+    base: &Assembly,
+    comp: &Arc<Component>,
+    camera: &Camera,
+    width: u32,
+    height: u32,
+    mask: &[bool],
+    k: usize,
+    time_limit_s: f64,
+    wide_ground: bool,
+) -> Result<(Vec<(Pose, f64)>, bool)> {
+    ranked(
+        base,
+        comp,
+        camera,
+        width,
+        height,
+        mask,
+        k,
+        time_limit_s,
+        wide_ground,
+        false,
+    )
+}
+
+#[allow(clippy::too_many_arguments)]
+fn ranked(
+    base: &Assembly,
+    comp: &Arc<Component>,
+    camera: &Camera,
+    width: u32,
+    height: u32,
+    mask: &[bool],
+    k: usize,
+    time_limit_s: f64,
+    wide_ground: bool,
+    prune: bool,
 ) -> Result<(Vec<(Pose, f64)>, bool)> {
     camera.validate()?;
     let n_px = width as usize * height as usize;
@@ -722,6 +875,8 @@ pub fn abys_ranked(
     } else {
         None
     };
+    // every valid placement with the penalty its score takes
+    let mut cands: Vec<(Pose, f64)> = Vec::new();
     for yaw in 0..4u8 {
         let (ground, beside) = if base.is_empty() {
             let all = GroundSearch::Region {
@@ -743,24 +898,52 @@ pub fn abys_ranked(
                     t[0] < b[0] || t[0] > b[1] || t[2] < b[2] || t[2] > b[3]
                 })
         };
-        let cands = base.candidates(comp, yaw, ground)?;
-        // Score in parallel, in chunks so the time limit is checked between chunks.
-        for chunk in cands.chunks(256) {
-            if start.elapsed().as_secs_f64() > time_limit_s {
-                timed_out = true;
-                break;
-            }
-            let scores: Vec<Result<(f64, Pose)>> = chunk
-                .par_iter()
-                .map(|c| {
-                    let iou = pose_iou(comp, &c.pose, camera, &target)?;
-                    let penalty = if detached(c) { DETACHED_PENALTY } else { 0.0 };
-                    Ok((iou - penalty, c.pose))
-                })
-                .collect();
-            for sc in scores {
-                scored.push(sc?);
-            }
+        for c in base.candidates(comp, yaw, ground)? {
+            let penalty = if detached(&c) { DETACHED_PENALTY } else { 0.0 };
+            cands.push((c.pose, penalty));
+        }
+    }
+    // Most promising first: no placement scores more than the share of the mask inside its
+    // drawn box (its IoU is at most that, less its penalty). Once the best k found so far all
+    // beat every bound left, the rest cannot enter the ranking: it is the ranking of scoring
+    // them all.
+    let order: Vec<(f64, usize)> = if prune {
+        let bound = ScoreBound::new(comp, camera, width, height, &target);
+        let mut order: Vec<(f64, usize)> = cands
+            .iter()
+            .enumerate()
+            .map(|(i, (pose, penalty))| (bound.of(pose) - penalty, i))
+            .collect();
+        order.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
+        order
+    } else {
+        (0..cands.len()).map(|i| (f64::INFINITY, i)).collect()
+    };
+    let mut kth = f64::NEG_INFINITY; // the k-th best score so far
+                                     // Score in parallel, in chunks so the time limit and the bound are checked between chunks.
+    for chunk in order.chunks(64) {
+        if scored.len() >= k && chunk[0].0 < kth {
+            break;
+        }
+        if start.elapsed().as_secs_f64() > time_limit_s {
+            timed_out = true;
+            break;
+        }
+        let scores: Vec<Result<(f64, Pose)>> = chunk
+            .par_iter()
+            .map(|&(_, i)| {
+                let (pose, penalty) = cands[i];
+                let iou = pose_iou(comp, &pose, camera, &target)?;
+                Ok((iou - penalty, pose))
+            })
+            .collect();
+        for sc in scores {
+            scored.push(sc?);
+        }
+        if scored.len() >= k {
+            scored.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
+            scored.truncate(k);
+            kth = scored[k - 1].0;
         }
     }
     scored.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
@@ -769,4 +952,96 @@ pub fn abys_ranked(
         scored.into_iter().map(|(iou, p)| (p, iou)).collect(),
         timed_out,
     ))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const W: u32 = 128;
+
+    fn comp(id: &str) -> Arc<Component> {
+        Arc::new(Component::primitive(id).unwrap())
+    }
+
+    /// Every valid placement of `c` on `base` scored against `mask`, best `k` first: the
+    /// ranking `abys_ranked` must return. Also checks that no score beats its bound.
+    fn every_placement(
+        base: &Assembly,
+        c: &Arc<Component>,
+        cam: &Camera,
+        mask: &[bool],
+        k: usize,
+    ) -> Vec<(Pose, f64)> {
+        let depth = base_depth(base, cam, W, W).unwrap();
+        let target = MaskTarget::new(W, W, depth, mask.to_vec()).unwrap();
+        let bound = ScoreBound::new(c, cam, W, W, &target);
+        let mut all = Vec::new();
+        for yaw in 0..4u8 {
+            for cand in base.candidates(c, yaw, GroundSearch::Auto).unwrap() {
+                let iou = pose_iou(c, &cand.pose, cam, &target).unwrap();
+                assert!(
+                    iou <= bound.of(&cand.pose),
+                    "{iou} > bound at {:?}",
+                    cand.pose
+                );
+                all.push((iou, cand.pose));
+            }
+        }
+        all.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
+        all.truncate(k);
+        all.into_iter().map(|(s, p)| (p, s)).collect()
+    }
+
+    #[test]
+    fn pruned_ranking_is_the_ranking_of_every_placement() {
+        let mut base = Assembly::new();
+        base.add(comp("3001"), Pose::new(0, [0, 3, 0])).unwrap();
+        base.add(comp("3001"), Pose::new(1, [4, 6, 2])).unwrap();
+        base.add(comp("3022"), Pose::new(0, [-4, 4, 0])).unwrap();
+        let cam = Camera::new(30.0, 225.0, 0.0, 0.012, [0.0, -0.1]).unwrap();
+        let c = comp("3040b");
+        // masks: a placement's own silhouette, the same shifted, a blob, a corner, nothing
+        let mut after = base.clone();
+        let id = after.add(c.clone(), Pose::new(2, [0, 6, 0])).unwrap();
+        let drawn = crate::scene::render_assembly(
+            &after,
+            &cam,
+            &RenderOptions::new(W, W),
+            &crate::colours::ColourTable::builtin(),
+            &crate::scene::MeshSource::builtin(),
+        )
+        .unwrap();
+        let own: Vec<bool> = drawn.ids.iter().map(|&i| i == id as i32).collect();
+        assert!(own.iter().filter(|&&m| m).count() > 50, "test layout");
+        let shifted: Vec<bool> = (0..own.len())
+            .map(|i| i % W as usize >= 5 && own[i - 5])
+            .collect();
+        let blob: Vec<bool> = (0..own.len())
+            .map(|i| {
+                let (x, y) = ((i % W as usize) as i32 - 70, (i / W as usize) as i32 - 50);
+                x * x + y * y < 150
+            })
+            .collect();
+        let corner: Vec<bool> = (0..own.len()).map(|i| i < 3 * W as usize).collect();
+        let none = vec![false; own.len()];
+        for (name, mask) in [
+            ("own", &own),
+            ("shifted", &shifted),
+            ("blob", &blob),
+            ("corner", &corner),
+            ("none", &none),
+        ] {
+            for k in [1, 8] {
+                let (ranked, timed_out) =
+                    abys_ranked(&base, &c, &cam, W, W, mask, k, 60.0, false).unwrap();
+                assert!(!timed_out);
+                assert_eq!(
+                    ranked,
+                    every_placement(&base, &c, &cam, mask, k),
+                    "{name}, k {k}"
+                );
+            }
+        }
+    }
 }
