@@ -335,8 +335,9 @@ def _solve(
     for t in types:
         mask |= t.mask
     memo: dict[frozenset[First], tuple[Any, list[tuple[float, First]]]] = {}
+    drawn: dict[First, _Drawn] = {}
     args = (ctx, types, time_limit_s, picture, tone)
-    preds, taken, options = _greedy(*args, [], wide, memo, deadline)
+    preds, taken, options = _greedy(*args, [], wide, memo, deadline, drawn)
     score = _explained(ctx, preds, mask, picture, tone)
     # a later decision taken first: a part that shows little until what stands on it is
     # placed (the bottom brick of a stack, hidden by the top one) is never among the first
@@ -344,7 +345,7 @@ def _solve(
     for later in list(taken[1:]) if LATER_FIRST else []:
         if score >= WELL_EXPLAINED or _clock() >= deadline:
             break
-        alt_preds, alt_taken, alt_options = _greedy(*args, [later], wide, memo, deadline)
+        alt_preds, alt_taken, alt_options = _greedy(*args, [later], wide, memo, deadline, drawn)
         alt_score = _explained(ctx, alt_preds, mask, picture, tone)
         if alt_score > score + 1e-6:
             preds, score, taken, options = alt_preds, alt_score, alt_taken, alt_options
@@ -357,7 +358,7 @@ def _solve(
             if alt == taken[level]:
                 continue
             alt_preds, alt_taken, alt_options = _greedy(
-                *args, [*taken[:level], alt], wide, memo, deadline
+                *args, [*taken[:level], alt], wide, memo, deadline, drawn
             )
             alt_score = _explained(ctx, alt_preds, mask, picture, tone)
             if alt_score > score + 1e-6:
@@ -406,6 +407,40 @@ def _explained(
     return score - 0.5 * sum(1 for p in preds if not p.placed) / max(len(preds), 1)
 
 
+@dataclass(frozen=True)
+class _Drawn:
+    """A candidate placement drawn alone (:func:`_draw_alone`), cropped to the box it covers."""
+
+    box: tuple[slice, slice]
+    #: its pixels, its depth and its colours within ``box``
+    own: np.ndarray
+    depth: np.ndarray
+    rgb: np.ndarray
+
+
+def _draw_alone(
+    comp: _bg.Component,
+    yaw: int,
+    t: tuple[int, int, int],
+    colour: int,
+    cam: _bg.Camera,
+    w: int,
+    h: int,
+) -> _Drawn:
+    """``comp`` at ``(yaw, t)`` in ``colour`` drawn alone with ``cam``, cropped to its pixels."""
+    alone = _bg.Assembly()
+    alone.add(comp, yaw, t, colour)
+    r = _bg.render(alone, cam, w, h)
+    own = r.ids == 0
+    rows, cols = np.nonzero(own.any(axis=1))[0], np.nonzero(own.any(axis=0))[0]
+    box = (
+        (slice(int(rows[0]), int(rows[-1]) + 1), slice(int(cols[0]), int(cols[-1]) + 1))
+        if len(rows)
+        else (slice(0, 0), slice(0, 0))
+    )
+    return _Drawn(box, own[box], r.depth[box], r.rgb[box])
+
+
 def _greedy(
     ctx: StepContext,
     types: list[SynthesisType],
@@ -416,6 +451,7 @@ def _greedy(
     wide: bool = False,
     memo: dict[frozenset[First], tuple[Any, list[tuple[float, First]]]] | None = None,
     deadline: float = float("inf"),
+    drawn: dict[First, _Drawn] | None = None,
 ) -> tuple[list[Prediction], list[First], list[list[First]]]:
     """The greedy of :func:`synthesize`, its first decisions forced to ``prefix``, the ground
     searched wherever the picture changed when ``wide``, each placement search limited to
@@ -426,7 +462,8 @@ def _greedy(
 
     ``memo``: a round's ranking by the set of placements made before it, shared by the greedy
     runs of one solve (what a round sees -- the shape, the pixels left to explain, the
-    instances left -- depends only on that set, not on the order it was placed in)."""
+    instances left -- depends only on that set, not on the order it was placed in).
+    ``drawn``: each candidate drawn alone (:func:`_draw_alone`), shared the same way."""
     w, h = ctx.image_size
     asm = ctx.base.copy()
     cam = ctx.camera
@@ -469,19 +506,24 @@ def _greedy(
             for yaw, tr, iou in distinct:
                 score = iou
                 # the candidate drawn alone, its visible pixels those in front of the shape
-                alone = _bg.Assembly()
-                alone.add(t.component, yaw, tr, colours[i])
-                r = _bg.render(alone, cam, w, h)
-                vis = (r.ids == 0) & (r.depth < shape_depth)
+                # (all within the box it is drawn in)
+                key = (i, yaw, tr)
+                d = drawn.get(key) if drawn is not None else None
+                if d is None:
+                    d = _draw_alone(t.component, yaw, tr, colours[i], cam, w, h)
+                    if drawn is not None:
+                        drawn[key] = d
+                box = d.box
+                vis = d.own & (d.depth < shape_depth[box])
                 if vis.any() and TYPE_WEIGHT and t.belief is not None:
-                    score += TYPE_WEIGHT * float(t.belief[vis].mean())
+                    score += TYPE_WEIGHT * float(t.belief[box][vis].mean())
                 if KEYPOINT_WEIGHT and t.heat is not None:
                     x, y = _keypoint_px(t.component, yaw, tr, cam, w, h)
                     if 0 <= x < w and 0 <= y < h:
                         score += KEYPOINT_WEIGHT * float(t.heat[int(y), int(x)])
                 if vis.any() and picture is not None:
-                    rendered = r.rgb[vis] / 255.0 * tone[0] + tone[1]
-                    diff = np.abs(picture[vis] - rendered).max(axis=1)
+                    rendered = d.rgb[vis] / 255.0 * tone[0] + tone[1]
+                    diff = np.abs(picture[box][vis] - rendered).max(axis=1)
                     score -= COLOUR_WEIGHT * float(diff.mean())
                 ranked_here.append((score, (i, yaw, tr)))
                 if best is None or score > best[0]:
