@@ -129,7 +129,8 @@ class ComponentEncoder(nn.Module):
         )
         x = grids.view(-1, *flat.shape[1:])
         for layer in self.convs:
-            conv, bn, relu = layer
+            conv, bn, relu = tuple(layer.children())
+            assert isinstance(bn, nn.modules.batchnorm._BatchNorm)
             x = relu(_counted_batch_norm(bn, conv(x), counts))
         f = x.mean(dim=(2, 3, 4))[inverse].view(b, k, -1)
         return f * valid[..., None]
@@ -244,7 +245,10 @@ class Trunk(nn.Module):
         conv is linear in its input channels, so it runs as two: the state features, the only
         input with a gradient, apart from the rest, whose input gradient is never needed (a
         third of a training step's backward pass otherwise)."""
-        conv, rest = self.stem[0][0], self.stem[0][1:]
+        first = self.stem[0]
+        assert isinstance(first, nn.Sequential)
+        conv, rest = first[0], first[1:]
+        assert isinstance(conv, nn.Conv2d)
         if not state.requires_grad:
             return rest(conv(torch.cat([image, maps, state, planes], dim=1)))
         w = conv.weight

@@ -507,12 +507,11 @@ def _greedy(
                 score = iou
                 # the candidate drawn alone, its visible pixels those in front of the shape
                 # (all within the box it is drawn in)
-                key = (i, yaw, tr)
-                d = drawn.get(key) if drawn is not None else None
+                d = drawn.get((i, yaw, tr)) if drawn is not None else None
                 if d is None:
                     d = _draw_alone(t.component, yaw, tr, colours[i], cam, w, h)
                     if drawn is not None:
-                        drawn[key] = d
+                        drawn[(i, yaw, tr)] = d
                 box = d.box
                 vis = d.own & (d.depth < shape_depth[box])
                 if vis.any() and TYPE_WEIGHT and t.belief is not None:
