@@ -782,7 +782,14 @@ pub fn silhouette_iou(
                     "mesh has a triangle index beyond its vertices".into(),
                 ));
             }
-            tris.push(idx.map(|i| proj[i]));
+            let [a, b, c] = idx.map(|i| proj[i]);
+            // faces turned away from the camera lie behind the faces turned towards it (the
+            // meshes are closed and wound outwards; pixel y runs down): they neither add
+            // pixels nor come nearer
+            if (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0]) >= 0.0 {
+                continue;
+            }
+            tris.push([a, b, c]);
         }
     }
     let x0 = (x_lo.floor().max(0.0) as usize).min(w);

@@ -412,3 +412,44 @@ fn aliases_resolve_to_library_parts() {
     assert_eq!(lib.resolve("98283"), None);
     assert_eq!(lib.resolve("3001old"), None);
 }
+
+/// `silhouette_iou` draws only the faces turned towards the camera: that leaves every part's
+/// silhouette and nearest depth as the renderer draws them (all faces) only if the meshes are
+/// closed and wound outwards. Every part, every yaw, views from above, the side and below.
+#[test]
+fn every_part_keeps_its_silhouette_with_only_the_faces_turned_to_the_camera() {
+    use brickgeom::camera::Camera;
+    use brickgeom::raster::{render, silhouette_iou, MaskTarget, RenderItem, RenderOptions};
+    use brickgeom::Pose;
+
+    let w = 96u32;
+    let n = (w * w) as usize;
+    for p in library().parts() {
+        for (elevation, azimuth) in [(30.0, 225.0), (20.0, 45.0), (0.0, 130.0), (-35.0, 300.0)] {
+            for yaw in 0..4u8 {
+                let pose = Pose::new(yaw, [0, 0, 0]);
+                let cam = Camera::new(elevation, azimuth, 0.0, 0.012, [0.0, 0.0]).unwrap();
+                let item = RenderItem {
+                    pose,
+                    ..RenderItem::new(&p.mesh, [200, 200, 200])
+                };
+                let drawn = render(&[item], &cam, &RenderOptions::new(w, w)).unwrap();
+                let mask: Vec<bool> = drawn.ids.iter().map(|&i| i == 0).collect();
+                let area = mask.iter().filter(|&&m| m).count();
+                assert!(area > 20, "{} too small to check", p.id);
+                // what stands just behind the part's drawn surface: the part shows in front of
+                // it only with its near faces
+                let behind: Vec<f32> = drawn.depth.iter().map(|&d| d + 0.5).collect();
+                assert_eq!(behind.len(), n);
+                let target = MaskTarget::new(w, w, behind, mask).unwrap();
+                let (iou, visible) = silhouette_iou(&[(&p.mesh, pose)], &cam, &target).unwrap();
+                // a pixel or two where faces meet is rasterization, a face missing is hundreds
+                assert!(
+                    iou >= 0.99 && (visible as usize).abs_diff(area) <= 2,
+                    "{} yaw {yaw} view ({elevation}, {azimuth}): IoU {iou}, {visible} of {area} px",
+                    p.id
+                );
+            }
+        }
+    }
+}
