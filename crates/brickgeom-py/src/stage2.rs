@@ -1,8 +1,8 @@
 //! Stage 2 (pose inference, `brickgeom::stage2`) and the analysis-by-synthesis baseline.
 
 use brickgeom::stage2::{
-    abys_ranked, abys_ranked_exhaustive, abys_step, infer_step, rotation_class, Detection,
-    InferOptions, InstancePrediction, TypeDetections,
+    abys_ranking, abys_step, infer_step, rotation_class, Detection, InferOptions,
+    InstancePrediction, TypeDetections,
 };
 use numpy::{PyReadonlyArray1, PyReadonlyArray2, PyReadonlyArray3};
 use pyo3::exceptions::PyValueError;
@@ -293,13 +293,8 @@ fn abys_ranked_py<'py>(
     let comp = component.get().inner.clone();
     let asm = &base.inner;
     let cam = camera.inner;
-    let rank = if exhaustive {
-        abys_ranked_exhaustive
-    } else {
-        abys_ranked
-    };
     let (ranked, timed_out) = detach_core(py, || {
-        rank(
+        abys_ranking(
             asm,
             &comp,
             &cam,
@@ -309,6 +304,7 @@ fn abys_ranked_py<'py>(
             k,
             time_limit_s,
             wide_ground,
+            exhaustive,
         )
     })?;
     Ok((

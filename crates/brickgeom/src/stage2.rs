@@ -789,7 +789,7 @@ impl ScoreBound {
 /// non-empty base the ground is searched beside the base, and with `wide_ground` also wherever
 /// the part may be seen in `mask` ([`ground_search`]). Placements are scored most promising
 /// first ([`ScoreBound`]) and the search stops once none left can enter the ranking: the
-/// result is [`abys_ranked_exhaustive`]'s, which scores them all.
+/// result is [`abys_ranking`]'s with `exhaustive`, which scores them all.
 #[allow(clippy::too_many_arguments)]
 pub fn abys_ranked(
     base: &Assembly,
@@ -802,35 +802,7 @@ pub fn abys_ranked(
     time_limit_s: f64,
     wide_ground: bool,
 ) -> Result<(Vec<(Pose, f64)>, bool)> {
-    ranked(
-        base,
-        comp,
-        camera,
-        width,
-        height,
-        mask,
-        k,
-        time_limit_s,
-        wide_ground,
-        true,
-    )
-}
-
-/// [`abys_ranked`] scoring every valid placement, none skipped by its bound: the reference the
-/// pruned search must equal (tests, benchmarks).
-#[allow(clippy::too_many_arguments)]
-pub fn abys_ranked_exhaustive(
-    base: &Assembly,
-    comp: &Arc<Component>,
-    camera: &Camera,
-    width: u32,
-    height: u32,
-    mask: &[bool],
-    k: usize,
-    time_limit_s: f64,
-    wide_ground: bool,
-) -> Result<(Vec<(Pose, f64)>, bool)> {
-    ranked(
+    abys_ranking(
         base,
         comp,
         camera,
@@ -844,8 +816,10 @@ pub fn abys_ranked_exhaustive(
     )
 }
 
+/// [`abys_ranked`], or with `exhaustive` every valid placement scored, none skipped by its bound:
+/// the reference the pruned search must equal (tests, benchmarks).
 #[allow(clippy::too_many_arguments)]
-fn ranked(
+pub fn abys_ranking(
     base: &Assembly,
     comp: &Arc<Component>,
     camera: &Camera,
@@ -855,7 +829,7 @@ fn ranked(
     k: usize,
     time_limit_s: f64,
     wide_ground: bool,
-    prune: bool,
+    exhaustive: bool,
 ) -> Result<(Vec<(Pose, f64)>, bool)> {
     camera.validate()?;
     let n_px = width as usize * height as usize;
@@ -907,7 +881,7 @@ fn ranked(
     // drawn box (its IoU is at most that, less its penalty). Once the best k found so far all
     // beat every bound left, the rest cannot enter the ranking: it is the ranking of scoring
     // them all.
-    let order: Vec<(f64, usize)> = if prune {
+    let order: Vec<(f64, usize)> = if !exhaustive {
         let bound = ScoreBound::new(comp, camera, width, height, &target);
         let mut order: Vec<(f64, usize)> = cands
             .iter()

@@ -465,6 +465,7 @@ def _greedy(
     instances left -- depends only on that set, not on the order it was placed in).
     ``drawn``: each candidate drawn alone (:func:`_draw_alone`), shared the same way."""
     w, h = ctx.image_size
+    drawn = {} if drawn is None else drawn
     asm = ctx.base.copy()
     cam = ctx.camera
     left = [t.count for t in types]
@@ -507,11 +508,11 @@ def _greedy(
                 score = iou
                 # the candidate drawn alone, its visible pixels those in front of the shape
                 # (all within the box it is drawn in)
-                d = drawn.get((i, yaw, tr)) if drawn is not None else None
+                d = drawn.get((i, yaw, tr))
                 if d is None:
-                    d = _draw_alone(t.component, yaw, tr, colours[i], cam, w, h)
-                    if drawn is not None:
-                        drawn[(i, yaw, tr)] = d
+                    d = drawn[(i, yaw, tr)] = _draw_alone(
+                        t.component, yaw, tr, colours[i], cam, w, h
+                    )
                 box = d.box
                 vis = d.own & (d.depth < shape_depth[box])
                 if vis.any() and TYPE_WEIGHT and t.belief is not None:
