@@ -15,7 +15,7 @@ import torch
 from mepnet import _brickgeom as _bg
 from mepnet.detector.config import ModelConfig
 from mepnet.detector.losses import total_loss
-from mepnet.detector.net import build_model
+from mepnet.detector.net import DIRECT3D_FROM_DETECTOR, build_model
 from mepnet.detector.targets import collate
 from mepnet.detector.weights import load_model, read_safetensors, write_safetensors
 from mepnet.manual import write_manual
@@ -376,6 +376,35 @@ def test_init_fine_tunes_from_given_weights(finished: Path, tmp_path: Path, manu
     assert any(not torch.equal(v, fresh[k]) for k, v in want.named_parameters())
     saved = json.loads((tmp_path / "init" / "config.json").read_text())["train"]
     assert saved["init"] == str(init)
+
+
+def test_direct3d_starts_from_the_detectors_encoders(
+    finished: Path, tmp_path: Path, manuals: Path, capsys: pytest.CaptureFixture[str]
+):
+    """--head direct3d --init DETECTOR: at lr 0 the tensors the two networks share are the
+    detector's exactly, the regression heads are a fresh run's (same seed); a detector run cannot
+    start from Direct3D weights (one line, exit 2)."""
+    init = finished / "model.safetensors"
+    runs = {}
+    for name, extra in (("init", ["--init", str(init)]), ("fresh", [])):
+        out = tmp_path / name
+        r = train("--data", str(manuals / "train"), "--steps", "1", "--lr", "0", "--seed", "5",
+                  "--head", "direct3d", "--out", str(out), *extra)  # fmt: skip
+        assert r.returncode == 0, r.stderr
+        runs[name] = dict(load_model(out / "model.safetensors")[0].named_parameters())
+    det = dict(load_model(init)[0].named_parameters())  # (batch-norm statistics move at lr 0)
+    shared = [k for k in runs["init"] if k.startswith(DIRECT3D_FROM_DETECTOR)]
+    own = [k for k in runs["init"] if not k.startswith(DIRECT3D_FROM_DETECTOR)]
+    assert shared and own and any(k.startswith("translation.") for k in own)
+    for k in shared:
+        assert torch.equal(runs["init"][k], det[k]), k
+    assert any(not torch.equal(runs["fresh"][k], det[k]) for k in shared)
+    for k in own:
+        assert torch.equal(runs["init"][k], runs["fresh"][k]), k
+    d3 = str(tmp_path / "init" / "model.safetensors")
+    bad = ["--data", str(manuals / "train"), "--steps", "1", "--init", d3]
+    assert main([*bad, "--out", str(tmp_path / "bad"), *COMMON]) == 2
+    one_error_line(capsys, d3, "direct3d network", "--head")
 
 
 def test_bf16_training_follows_fp32(finished: Path, tmp_path: Path, manuals: Path):

@@ -354,6 +354,11 @@ def coord_channels(cam: torch.Tensor, h: int, w: int) -> tuple[torch.Tensor, tor
     return torch.cat(planes, dim=1), cells
 
 
+# The tensors a Direct3D network shares with the detector (``--init`` from the detector's
+# weights): the encoders, the hourglass and the centre heatmap; the regression heads are its own.
+DIRECT3D_FROM_DETECTOR = ("state.", "components.", "stem.", "stacks.", "inter.", "heatmap.")
+
+
 class Direct3DNet(Trunk):
     """The paper's Direct3D baseline: the detector's encoders and hourglass, and heads that
     regress each instance's 3D translation and rotation directly, read at its centre cell (a

@@ -13,6 +13,7 @@ from typing import Any
 import torch
 
 from mepnet.detector.config import HEADS, ModelConfig
+from mepnet.detector.net import DIRECT3D_FROM_DETECTOR
 from mepnet.detector.weights import load_model_weights
 from mepnet.errors import ConfigError
 from mepnet.manual import iter_manual_dirs, load_manual
@@ -171,13 +172,20 @@ def config_diff(saved: dict[str, Any], now: ModelConfig, what: str) -> str:
 
 
 def load_init(path: str, model_cfg: ModelConfig) -> dict[str, torch.Tensor]:
-    """The weights of ``--init``, checked against the run's model config."""
+    """The weights of ``--init``, checked against the run's model config. A Direct3D run may
+    start from the detector's weights: it takes the encoders, the hourglass and the centre
+    heatmap (:data:`mepnet.detector.net.DIRECT3D_FROM_DETECTOR`, the tensors the two networks
+    share), its regression heads start fresh."""
     tensors, saved = load_model_weights(path)
     head = saved.get("head", "mepnet")
     if head != model_cfg.head:
-        raise ConfigError(
-            f"{path}: --init weights are a {head} network, the run trains {model_cfg.head} (--head)"
-        )
+        if (head, model_cfg.head) != ("mepnet", "direct3d"):
+            raise ConfigError(
+                f"{path}: --init weights are a {head} network, the run trains "
+                f"{model_cfg.head} (--head)"
+            )
+        saved = {k: v for k, v in saved.items() if k != "head"}
+        tensors = {k: v for k, v in tensors.items() if k.startswith(DIRECT3D_FROM_DETECTOR)}
     diff = config_diff(saved, model_cfg, "weights")
     if diff:
         raise ConfigError(f"{path}: --init weights do not fit the model config ({diff})")

@@ -26,7 +26,7 @@ from tqdm import tqdm
 from mepnet.cli import note, workers_ignore_interrupts
 from mepnet.detector.config import ModelConfig
 from mepnet.detector.losses import total_loss
-from mepnet.detector.net import build_model
+from mepnet.detector.net import DIRECT3D_FROM_DETECTOR, build_model
 from mepnet.detector.targets import collate
 from mepnet.detector.weights import load_state_strict, save_model
 from mepnet.errors import CheckpointError, ConfigError
@@ -313,7 +313,11 @@ def train(
     torch.manual_seed(cfg.seed)  # the same initial weights on every rank
     model = build_model(model_cfg).to(d.device)
     if init is not None and ckpt is None:
-        load_state_strict(model, init, Path(str(cfg.init)))
+        # a Direct3D run from the detector's weights: its own heads keep their fresh values
+        own = {k: v for k, v in model.state_dict().items() if k not in init}
+        if model_cfg.head != "direct3d" or any(k.startswith(DIRECT3D_FROM_DETECTOR) for k in own):
+            own = {}
+        load_state_strict(model, {**own, **init}, Path(str(cfg.init)))
     params = list(model.parameters())
     opt = torch.optim.AdamW(params, lr=cfg.lr, weight_decay=cfg.weight_decay)
     start = int(ckpt[2]["step"]) if ckpt is not None else 0
