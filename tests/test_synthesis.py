@@ -135,6 +135,52 @@ def test_a_part_standing_apart_on_the_ground_is_found(
     assert step_matches(narrow, narrow.main.steps[-1]) == 0
 
 
+def test_a_part_standing_apart_must_show_itself(tmp_path: Path):
+    """The wide ground search's solution is not taken when a part of it standing on the ground
+    is mostly hidden behind the model (it only mimics a change mask that missed part of the true
+    placement); the part standing apart in full view is."""
+    from mepnet import _brickgeom as _bg
+    from mepnet.manual import answers_of
+    from mepnet.stage2 import Prediction, StepContext
+    from mepnet.stage2.synthesis import WIDE_VISIBLE, _hidden_on_ground
+
+    m = load_manual(manual_from_ldraw(APART, tmp_path))
+    answers = answers_of(m)
+    comps = answers.components(m)
+    ctx = StepContext(m.main.steps[1], answers.main.assembly_before(1, comps), comps, m.image_size)
+    (truth,) = answers.main.truth(1).placed()
+    comp, w, h = comps[truth.component], *m.image_size
+
+    def pred(t: tuple[int, int, int]) -> Prediction:
+        return Prediction(0, truth.component, yaw=truth.yaw, t=t, attach="ground")
+
+    def shown(t: tuple[int, int, int]) -> float:
+        asm = ctx.base.copy()
+        asm.add(comp, truth.yaw, t, 1)
+        alone = _bg.Assembly()
+        alone.add(comp, truth.yaw, t, 1)
+        seen = (_bg.render(asm, ctx.camera, w, h).ids == len(ctx.base)).sum()
+        return seen / max((_bg.render(alone, ctx.camera, w, h).ids == 0).sum(), 1)
+
+    assert shown(truth.t) > 0.99 and not _hidden_on_ground(ctx, [pred(truth.t)])
+    ground = [(x, truth.t[1], z) for x in range(-16, 17) for z in range(-16, 17)]
+
+    def on_ground(t: tuple[int, int, int]) -> bool:
+        try:
+            return ctx.base.check(comp, truth.yaw, t) == "ground"
+        except _bg.PlacementError:  # collides, or floats
+            return False
+
+    ground = [t for t in ground if on_ground(t)]
+    behind = min((t for t in ground if shown(t) > 0.2), key=shown)  # its top over the brick
+    assert shown(behind) < WIDE_VISIBLE
+    assert _hidden_on_ground(ctx, [pred(truth.t), pred(behind)])
+    assert _hidden_on_ground(ctx, [pred(behind)])
+    assert not _hidden_on_ground(
+        ctx, [pred(truth.t), Prediction(0, truth.component, None, None, failure="x")]
+    )
+
+
 #: A first step: a slope and a tile standing apart on the ground.
 FIRST_APART = """0 two parts apart
 1 2 0 -24 0 1 0 0 0 1 0 0 0 1 3039.dat
