@@ -136,9 +136,10 @@ def test_a_part_standing_apart_on_the_ground_is_found(
 
 
 def test_a_part_standing_apart_must_show_itself(tmp_path: Path):
-    """The wide ground search's solution is not taken when a part of it standing on the ground
-    is mostly hidden behind the model (it only mimics a change mask that missed part of the true
-    placement); the part standing apart in full view is."""
+    """The wide ground search's solution is not taken when a part it stands on the ground is
+    mostly hidden behind the base shape (it only mimics a change mask that missed part of the
+    true placement); the part standing apart in full view is, and so is a part the narrow
+    solution placed the same way."""
     from mepnet import _brickgeom as _bg
     from mepnet.manual import answers_of
     from mepnet.stage2 import Prediction, StepContext
@@ -176,6 +177,7 @@ def test_a_part_standing_apart_must_show_itself(tmp_path: Path):
     assert shown(behind) < WIDE_VISIBLE
     assert _hidden_on_ground(ctx, [pred(truth.t), pred(behind)])
     assert _hidden_on_ground(ctx, [pred(behind)])
+    assert not _hidden_on_ground(ctx, [pred(behind)], [pred(behind)])  # the narrow solve's own
     assert not _hidden_on_ground(
         ctx, [pred(truth.t), Prediction(0, truth.component, None, None, failure="x")]
     )

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -283,7 +284,7 @@ def synthesize(
     preds, score = _solve(ctx, types, time_limit_s, picture, tone, first, deadline)
     if score < WIDE_BELOW and not first and _clock() < deadline:
         wide, wide_score = _solve(ctx, types, time_limit_s, picture, tone, True, deadline)
-        if wide_score > score + WIDE_MARGIN and not _hidden_on_ground(ctx, wide):
+        if wide_score > score + WIDE_MARGIN and not _hidden_on_ground(ctx, wide, preds):
             preds = wide
     if _clock() >= deadline:
         preds = [dataclasses.replace(p, extra={**p.extra, "over_budget": True}) for p in preds]
@@ -315,35 +316,33 @@ WIDE_BELOW = 0.8
 #: ... and that solution is taken when it explains the picture better by this much (seen along
 #: the camera's rays, a part far behind the shape can mimic one fixed onto it).
 WIDE_MARGIN = 0.1
-#: ... and when each of its parts standing on the ground shows at least this share of itself:
-#: an instruction picture shows a new part standing apart; one mostly hidden behind the model
-#: only mimics a change mask that missed part of the true placement (another renderer's part
-#: drawn in the colour of the part under it).
+#: ... and when each of its parts standing on the ground shows at least this share of itself
+#: in front of the base shape: an instruction picture shows a new part standing apart; one
+#: mostly hidden behind the model only mimics a change mask that missed part of the true
+#: placement (another renderer's part drawn in the colour of the part under it). (The step's
+#: other new parts may hide it: the bottom of a stack, a small part behind a new plate.)
 WIDE_VISIBLE = 0.8
 
 
-def _hidden_on_ground(ctx: StepContext, preds: list[Prediction]) -> bool:
-    """Whether a part of ``preds`` standing on the ground shows less than :data:`WIDE_VISIBLE`
-    of itself, drawn with the base and the step's other parts."""
-    grounded = [i for i, p in enumerate(preds) if p.placed and p.attach == "ground"]
-    if not grounded:
-        return False
+def _hidden_on_ground(
+    ctx: StepContext, preds: list[Prediction], before: Sequence[Prediction] = ()
+) -> bool:
+    """Whether a part of ``preds`` standing on the ground, and not placed so in ``before``,
+    shows less than :data:`WIDE_VISIBLE` of itself drawn with the base shape."""
     w, h = ctx.image_size
-    asm = ctx.base.copy()
-    n0 = len(asm)
-    ids = {}
-    for i, p in enumerate(preds):
-        if p.placed:
-            ids[i] = len(asm)
-            asm.add(ctx.components[p.component], p.yaw, p.t, ctx.colour(p.entry))  # type: ignore[arg-type]
-    drawn = _bg.render(asm, ctx.camera, w, h).ids
-    shown = np.bincount(drawn[drawn >= n0] - n0, minlength=len(asm) - n0)
-    for i in grounded:
-        p = preds[i]
+    n0 = len(ctx.base)
+    known = {(q.component, q.yaw, q.t) for q in before if q.placed}
+    for p in preds:
+        if not (p.placed and p.attach == "ground") or (p.component, p.yaw, p.t) in known:
+            continue
+        comp = ctx.components[p.component]
         alone = _bg.Assembly()
-        alone.add(ctx.components[p.component], p.yaw, p.t, 0)  # type: ignore[arg-type]
+        alone.add(comp, p.yaw, p.t, 0)  # type: ignore[arg-type]
         full = int((_bg.render(alone, ctx.camera, w, h).ids >= 0).sum())
-        if full and shown[ids[i] - n0] < WIDE_VISIBLE * full:
+        asm = ctx.base.copy()
+        asm.add(comp, p.yaw, p.t, 0)  # type: ignore[arg-type]
+        shown = int((_bg.render(asm, ctx.camera, w, h).ids == n0).sum())
+        if full and shown < WIDE_VISIBLE * full:
             return True
     return False
 
