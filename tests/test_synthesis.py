@@ -52,7 +52,8 @@ def stack(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 def test_a_stack_of_equal_parts_is_solved_as_a_whole(stack: Path, monkeypatch: pytest.MonkeyPatch):
     """The round brick that best fits the whole stack's pixels is one standing off the
-    column's axis; revisiting the greedy's decisions finds the stack itself."""
+    column's axis; revisiting the greedy's decisions finds the stack itself, and so does
+    searching the three as one column."""
     import mepnet.stage2.synthesis as synthesis
 
     m = load_manual(stack)
@@ -61,7 +62,10 @@ def test_a_stack_of_equal_parts_is_solved_as_a_whole(stack: Path, monkeypatch: p
     assert step_matches(run, last) == 3
     assert [p.t[1] for p in last.predictions] == [6, 9, 12]  # bottom to top
     assert not any(p.extra.get("over_budget") for p in last.predictions)
-    monkeypatch.setattr(synthesis, "FIRST_CHOICES", 1)  # the greedy alone
+    monkeypatch.setattr(synthesis, "FIRST_CHOICES", 1)  # no revisits
+    column = run_manual(m, make_predictor("synthesis"), teacher_forced=True)
+    assert step_matches(column, column.main.steps[-1]) == 3  # what the column search buys
+    monkeypatch.setattr(synthesis, "COLUMNS", False)  # the greedy alone
     greedy = run_manual(m, make_predictor("synthesis"), teacher_forced=True)
     assert step_matches(greedy, greedy.main.steps[-1]) < 3  # what the revisiting buys
 
@@ -107,8 +111,59 @@ def test_a_stack_is_found_when_its_bottom_is_never_a_first_choice(
     last = run.main.steps[-1]
     assert step_matches(run, last) == 2
     monkeypatch.setattr(synthesis, "LATER_FIRST", False)
+    column = run_manual(m, make_predictor("synthesis"), teacher_forced=True)
+    assert step_matches(column, column.main.steps[-1]) == 2  # the two as one column
+    monkeypatch.setattr(synthesis, "COLUMNS", False)
     greedy = run_manual(m, make_predictor("synthesis"), teacher_forced=True)
     assert step_matches(greedy, greedy.main.steps[-1]) < 2
+
+
+#: A 2x4 plate, then three round 2x2 bricks stacked on it.
+COLUMN = """0 a column of round bricks
+1 4 0 -8 0 1 0 0 0 1 0 0 0 1 3020.dat
+0 STEP
+1 25 -20 -32 0 1 0 0 0 1 0 0 0 1 3941.dat
+1 25 -20 -56 0 1 0 0 0 1 0 0 0 1 3941.dat
+1 25 -20 -80 0 1 0 0 0 1 0 0 0 1 3941.dat
+0 STEP
+"""
+
+
+def test_identical_parts_are_also_tried_stacked_in_one_column(tmp_path: Path):
+    """A step adding three round bricks: among the column placements tried (the three stacked
+    straight up, ranked as one component on the type's mask) is the true stack, bottom first,
+    each valid on the one before; a type of one instance has none."""
+    from mepnet import _brickgeom as _bg
+    from mepnet.manual import answers_of
+    from mepnet.stage2 import StepContext
+    from mepnet.stage2.synthesis import SynthesisType, _columns
+
+    m = load_manual(manual_from_ldraw(COLUMN, tmp_path))
+    answers = answers_of(m)
+    comps = answers.components(m)
+    ctx = StepContext(m.main.steps[1], answers.main.assembly_before(1, comps), comps, m.image_size)
+    truth = sorted(answers.main.truth(1).placed(), key=lambda i: i.t[1])
+    comp = comps[truth[0].component]
+    w, h = m.image_size
+    shown = _bg.Assembly()
+    for inst in truth:
+        shown.add(comp, inst.yaw, inst.t, inst.colour)
+    mask = _bg.render(shown, ctx.camera, w, h).ids >= 0
+    prefixes = _columns(ctx, [SynthesisType(0, comp, 3, mask)], 10.0, False, float("inf"))
+    assert 1 <= len(prefixes) <= 3 and all(len(p) == 3 for p in prefixes)
+    want = [(0, inst.yaw, inst.t) for inst in truth]
+    assert any(
+        all(
+            comp.same_placement(y, t, wy, wt)
+            for (_, y, t), (_, wy, wt) in zip(p, want, strict=True)
+        )
+        for p in prefixes
+    ), prefixes
+    for p in prefixes:  # bottom first: each valid on what is below it
+        asm = ctx.base.copy()
+        for _, y, t in p:
+            asm.add_checked(comp, y, t)
+    assert _columns(ctx, [SynthesisType(0, comp, 1, mask)], 10.0, False, float("inf")) == []
 
 
 #: A 2x4 brick, then a slope standing on the ground on its own, four studs away.

@@ -32,7 +32,7 @@ import numpy as np
 
 from mepnet import _brickgeom as _bg
 from mepnet.errors import ManualFormatError
-from mepnet.geom import LDU_PER_CELL, BrickGeomError, rotate_ldu
+from mepnet.geom import LDU_PER_CELL, BrickGeomError, rotate_lattice, rotate_ldu
 from mepnet.stage2.base import Prediction, Predictor, StepContext
 from mepnet.state import (
     CHANGE_THRESHOLD,
@@ -316,21 +316,23 @@ WIDE_BELOW = 0.8
 #: ... and that solution is taken when it explains the picture better by this much (seen along
 #: the camera's rays, a part far behind the shape can mimic one fixed onto it).
 WIDE_MARGIN = 0.1
-#: ... and when each of its parts standing on the ground shows at least this share of itself
-#: in front of the base shape: an instruction picture shows a new part standing apart; one
-#: mostly hidden behind the model only mimics a change mask that missed part of the true
-#: placement (another renderer's part drawn in the colour of the part under it). (The step's
-#: other new parts may hide it: the bottom of a stack, a small part behind a new plate.)
+#: ... and when each of its parts standing on the ground apart from the base shape (outside its
+#: footprint's box) shows at least this share of itself in front of the base: an instruction
+#: picture shows a new part standing apart; one mostly hidden behind the model only mimics a
+#: change mask that missed part of the true placement (another renderer's part drawn in the
+#: colour of the part under it). (Parts standing beside or under the base are often partly
+#: hidden by it, and the step's own new parts may hide any: the bottom of a stack.)
 WIDE_VISIBLE = 0.8
 
 
 def _hidden_on_ground(
     ctx: StepContext, preds: list[Prediction], before: Sequence[Prediction] = ()
 ) -> bool:
-    """Whether a part of ``preds`` standing on the ground, and not placed so in ``before``,
-    shows less than :data:`WIDE_VISIBLE` of itself drawn with the base shape."""
+    """Whether a part of ``preds`` standing on the ground outside the base's footprint, and not
+    placed so in ``before``, shows less than :data:`WIDE_VISIBLE` of itself drawn with the base."""
     w, h = ctx.image_size
     n0 = len(ctx.base)
+    box = ctx.base.bounds()
     known = {(q.component, q.yaw, q.t) for q in before if q.placed}
     for p in preds:
         if not (p.placed and p.attach == "ground") or (p.component, p.yaw, p.t) in known:
@@ -338,6 +340,12 @@ def _hidden_on_ground(
         comp = ctx.components[p.component]
         alone = _bg.Assembly()
         alone.add(comp, p.yaw, p.t, 0)  # type: ignore[arg-type]
+        own = alone.bounds()
+        if box is None or own is None:
+            continue
+        (lo, hi), (plo, phi) = box, own
+        if all(plo[a] <= hi[a] and phi[a] >= lo[a] for a in (0, 2)):
+            continue  # within the base's footprint box
         full = int((_bg.render(alone, ctx.camera, w, h).ids >= 0).sum())
         asm = ctx.base.copy()
         asm.add(comp, p.yaw, p.t, 0)  # type: ignore[arg-type]
@@ -379,6 +387,17 @@ def _solve(
         alt_score = _explained(ctx, alt_preds, mask, picture, tone)
         if alt_score > score + 1e-6:
             preds, score, taken, options = alt_preds, alt_score, alt_taken, alt_options
+    # identical parts stacked straight up: the lower ones show little until the ones above
+    # them are placed, and the upper ones are not valid before them, so a column of them is
+    # searched whole (its placements ranked as one component) and the rest solved greedily
+    total = sum(t.count for t in types)
+    for prefix in _columns(ctx, types, time_limit_s, wide, deadline) if COLUMNS else []:
+        if score >= WELL_EXPLAINED or _clock() >= deadline:
+            break
+        alt_preds, alt_taken, alt_options = _greedy(*args, prefix, wide, memo, deadline, drawn)
+        alt_score = _explained(ctx, alt_preds, mask, picture, tone)
+        if len(alt_preds) == total and alt_score > score + 1e-6:
+            preds, score, taken, options = alt_preds, alt_score, alt_taken, alt_options
     # each decision in turn: the next best choices there, the rest greedy again
     level = 0
     while score < WELL_EXPLAINED and level < len(taken) and _clock() < deadline:
@@ -410,6 +429,46 @@ FIRST_CHOICES = 3
 
 #: A decision of :func:`_greedy`: (type index, yaw, translation).
 First = tuple[int, int, tuple[int, int, int]]
+
+#: Whether a step adding several identical parts explained worse than :data:`WELL_EXPLAINED`
+#: is also solved with them stacked in one column (:func:`_columns`).
+COLUMNS = True
+#: Column placements tried per type.
+COLUMN_CHOICES = 3
+
+
+def _columns(
+    ctx: StepContext,
+    types: list[SynthesisType],
+    time_limit_s: float,
+    wide: bool,
+    deadline: float,
+) -> list[list[First]]:
+    """For each type of two or more instances of one part, the best placements of all of them
+    stacked straight up (each on the one below, same yaw), as decisions for :func:`_greedy`,
+    bottom first: the column is ranked as one component (``abys_ranked`` on the type's mask)."""
+    w, h = ctx.image_size
+    out: list[list[First]] = []
+    for i, t in enumerate(types):
+        comp = t.component
+        if t.count < 2 or comp.is_submodule or not t.mask.any():
+            continue
+        height = int(np.ptp(comp.voxels[:, 1])) + 1
+        poses = np.array([[0, 0, k * height, 0] for k in range(t.count)], np.int64)
+        try:
+            column = _bg.Component.from_bricks("column", [comp.name] * t.count, poses)
+        except BrickGeomError:
+            continue
+        limit = min(time_limit_s, max(deadline - _clock(), MIN_SEARCH_S))
+        ranked, _ = _bg.abys_ranked(
+            ctx.base, ctx.camera, w, h, column, t.mask, COLUMN_CHOICES, limit, wide_ground=wide
+        )
+        for yaw, tr, _ in ranked:
+            t0 = (int(tr[0]), int(tr[1]), int(tr[2]))
+            out.append(
+                [(i, (yaw + b) % 4, rotate_lattice(bt, yaw, t0)) for _, b, bt, _ in column.bricks]
+            )
+    return out
 
 
 def _explained(
