@@ -312,7 +312,8 @@ def test_weights_that_do_not_fit_are_refused_in_one_line(tmp_path: Path, manuals
         wrong / "model.safetensors",
     )
     one_line_error(r, "model.safetensors", "tensors")
-    # fine-tuning Direct3D from the detector's weights
+    # the detector from Direct3D's weights (the other way round starts from the shared encoders:
+    # tests/test_train.py)
     r = run(
         "mepnet.train",
         "--out",
@@ -321,10 +322,8 @@ def test_weights_that_do_not_fit_are_refused_in_one_line(tmp_path: Path, manuals
         manuals / "train",
         "--model",
         "tiny",
-        "--head",
-        "direct3d",
         "--init",
-        det / "model.safetensors",
+        d3 / "model.safetensors",
         "--steps",
         "1",
     )
