@@ -342,7 +342,6 @@ def redraw_step(job: tuple[str, str, int | None, int, str | None]) -> dict[str, 
     else:
         assert ans.ids_path is not None
         mask = read_instance_map(ans.ids_path, (w, h)) >= 0
-    alpha = rgba[..., 3].astype(np.float64) / 255
     row: dict[str, Any] = {
         "manual": Path(src).name,
         "build": build.name,
@@ -351,11 +350,27 @@ def redraw_step(job: tuple[str, str, int | None, int, str | None]) -> dict[str, 
         "leocad_s": round(seconds, 3),
     }
     target = Path(dst) / step.image_path.relative_to(manual.path) if dst else None
+    return place_picture(rgba, mask, (w, h), row, target, "LeoCAD")
+
+
+def place_picture(
+    rgba: np.ndarray,
+    mask: np.ndarray,
+    size: tuple[int, int],
+    row: dict[str, Any],
+    target: Path | None,
+    renderer: str,
+) -> dict[str, Any]:
+    """Another renderer's picture (S x S RGBA) of a step aligned to mepnet's silhouette ``mask``
+    (:func:`align`, and mirrored as a handedness check), warped onto a white page of ``size``
+    and written to ``target`` (None: not written); ``row`` with the step's figures added."""
+    w, h = size
+    alpha = rgba[..., 3].astype(np.float64) / 255
     if not alpha.any() or not mask.any():
-        if target is not None:  # never leave mepnet's own picture in LeoCAD's manual
+        if target is not None:  # never leave mepnet's own picture in the other renderer's manual
             Image.new("RGB", (w, h), "white").save(target)
-        row.update(iou=0.0, iou_mirrored=0.0, ok=False,
-                   problem="empty LeoCAD picture" if not alpha.any() else "empty instance map")  # fmt: skip
+        problem = f"empty {renderer} picture" if not alpha.any() else "empty instance map"
+        row.update(iou=0.0, iou_mirrored=0.0, ok=False, problem=problem)
         return row
     t = align(mask, alpha)
     tm = align(mask, alpha[:, ::-1])
@@ -390,10 +405,18 @@ def mepnet_mask(manual: Any, key: int | None, k: int, cam: dict[str, Any]) -> np
 # The command
 
 
-def check_inputs(data: Path, ldraw: Path) -> list[Any]:
-    for tool in ("leocad", "Xvfb", "nice"):
+def check_inputs(
+    data: Path,
+    ldraw: Path,
+    tools: tuple[str, ...] = ("leocad", "Xvfb", "nice"),
+    debian: str = "leocad xvfb",
+    renderer: str = "LeoCAD",
+) -> list[Any]:
+    """The manuals under ``data`` (with answers, cameras and instance maps), once ``tools`` (the
+    Debian packages ``debian``) and the LDraw library are there; :class:`InputError` otherwise."""
+    for tool in tools:
         if shutil.which(tool) is None:
-            raise InputError(f"{tool} is not installed (Debian: apt-get install leocad xvfb)")
+            raise InputError(f"{tool} is not installed (Debian: apt-get install {debian})")
     if not (ldraw / "parts").is_dir():
         raise InputError(f"--ldraw {ldraw}: not an LDraw library (no parts/ folder)")
     if not data.is_dir():
@@ -411,7 +434,7 @@ def check_inputs(data: Path, ldraw: Path) -> list[Any]:
         except (BrickGeomError, MepnetError) as e:
             raise InputError(str(e).splitlines()[0]) from None
         if m.answers is None:
-            raise InputError(f"{d}: the manual has no answers (LeoCAD needs the poses to draw)")
+            raise InputError(f"{d}: the manual has no answers ({renderer} needs the poses to draw)")
         for key, build in m.builds():
             for k, st in enumerate(build.steps):
                 if st.camera is None:
@@ -547,16 +570,7 @@ def redraw_all(manuals: list[Any], args: argparse.Namespace) -> int:
     started = time.time()
     rows: list[dict[str, Any]] = []
     with atomic_folder(args.out, PROG, replace=False) as tmp:
-        jobs: list[tuple[str, str, int | None, int, str | None]] = []
-        for m in manuals:
-            dst = tmp / m.path.resolve().name
-            dst.mkdir()
-            for p in m.path.iterdir():
-                if p.is_file() and not p.name.startswith("."):
-                    shutil.copyfile(p, dst / p.name)  # the pictures are replaced below
-            for key, build in m.builds():
-                for k in range(1, len(build.steps) + 1):
-                    jobs.append((str(m.path), str(dst), key, k, None))
+        jobs = [(*job, None) for job in copy_manuals(manuals, tmp)]
         work = Path(tempfile.mkdtemp(prefix="leocad-work-"))
         try:
             p, servers = pool(args.workers, args.ldraw, work)
@@ -596,6 +610,22 @@ def redraw_all(manuals: list[Any], args: argparse.Namespace) -> int:
     print(f"wrote {len(manuals)} manual(s), {len(rows)} pictures, to {args.out} in "
           f"{s['seconds']:.0f} s (report: {args.out / REPORT})")  # fmt: skip
     return 0 if s["failed"] == 0 and handed else 1
+
+
+def copy_manuals(manuals: list[Any], out: Path) -> list[tuple[str, str, int | None, int]]:
+    """Each manual's files copied into a folder of ``out`` (the pictures to be replaced); one
+    job (source folder, copy, build key, step k from 1) per step of every build."""
+    jobs: list[tuple[str, str, int | None, int]] = []
+    for m in manuals:
+        dst = out / m.path.resolve().name
+        dst.mkdir()
+        for p in m.path.iterdir():
+            if p.is_file() and not p.name.startswith("."):
+                shutil.copyfile(p, dst / p.name)
+        for key, build in m.builds():
+            for k in range(1, len(build.steps) + 1):
+                jobs.append((str(m.path), str(dst), key, k))
+    return jobs
 
 
 def leocad_version() -> str:

@@ -52,7 +52,7 @@ from mepnet import BrickGeomError  # noqa: E402
 from mepnet import _brickgeom as _bg  # noqa: E402
 from mepnet.errors import MepnetError  # noqa: E402
 from mepnet.files import atomic_folder  # noqa: E402
-from mepnet.manual import answers_of, iter_manual_dirs, load_manual  # noqa: E402
+from mepnet.manual import answers_of, load_manual  # noqa: E402
 from mepnet.manual.images import read_instance_map  # noqa: E402
 from PIL import Image  # noqa: E402
 
@@ -68,10 +68,6 @@ global_settings { assumed_gamma 1.0 ambient_light rgb 1 max_trace_level 5 }
 background { rgbt <1, 1, 1, 1> }
 #declare F = finish { ambient 0.18 diffuse 0.78 specular 0.35 roughness 0.015 }
 """
-
-
-class InputError(Exception):
-    """Bad input: one line, exit status 2."""
 
 
 def pov(p: np.ndarray) -> str:
@@ -215,7 +211,6 @@ def redraw_step(job: tuple[str, str, int | None, int]) -> dict[str, Any]:
     seconds = time.perf_counter() - t0
     assert ans.ids_path is not None
     mask = read_instance_map(ans.ids_path, (w, h)) >= 0
-    alpha = rgba[..., 3].astype(np.float64) / 255
     row: dict[str, Any] = {
         "manual": Path(src).name,
         "build": build.name,
@@ -224,64 +219,11 @@ def redraw_step(job: tuple[str, str, int | None, int]) -> dict[str, Any]:
         "leocad_s": round(seconds, 3),  # (the renderer's seconds: the key leocad_manuals sums)
     }
     target = Path(dst) / step.image_path.relative_to(manual.path) if dst else None
-    if not alpha.any() or not mask.any():
-        if target is not None:  # never leave mepnet's own picture in POV-Ray's manual
-            Image.new("RGB", (w, h), "white").save(target)
-        row.update(iou=0.0, iou_mirrored=0.0, ok=False,
-                   problem="empty POV-Ray picture" if not alpha.any() else "empty instance map")  # fmt: skip
-        return row
-    t = lm.align(mask, alpha)
-    tm = lm.align(mask, alpha[:, ::-1])
-    rgb, walpha = lm.warp(rgba, t, w, h)
-    iou = float(((walpha >= 0.5) & mask).sum() / max(1, ((walpha >= 0.5) | mask).sum()))
-    px = 2 / max(w, h)
-    row.update(
-        iou=round(iou, 4),
-        iou_search=round(t["iou"], 4),
-        iou_mirrored=round(tm["iou"], 4),
-        scale=round(t["a"], 5),
-        shift_px=[round(t["bx"] / px, 3), round(t["by"] / px, 3)],
-        ok=iou >= MIN_IOU,
-    )
-    if target is not None:
-        Image.fromarray(rgb).save(target)
-    return row
+    return lm.place_picture(rgba, mask, (w, h), row, target, "POV-Ray")
 
 
 # ---------------------------------------------------------------------------------------------
 # The command
-
-
-def check_inputs(data: Path, ldraw: Path) -> list[Any]:
-    for tool in ("povray", "nice"):
-        if shutil.which(tool) is None:
-            raise InputError(f"{tool} is not installed (Debian: apt-get install povray)")
-    if not (ldraw / "parts").is_dir():
-        raise InputError(f"--ldraw {ldraw}: not an LDraw library (no parts/ folder)")
-    if not data.is_dir():
-        raise InputError(f"--data {data}: not a folder")
-    try:
-        dirs = list(iter_manual_dirs(data))
-    except (BrickGeomError, MepnetError) as e:
-        raise InputError(str(e)) from None
-    if not dirs:
-        raise InputError(f"--data {data}: no manual folders (manual.json) there")
-    manuals = []
-    for d in dirs:
-        try:
-            m = load_manual(d)
-        except (BrickGeomError, MepnetError) as e:
-            raise InputError(str(e).splitlines()[0]) from None
-        if m.answers is None:
-            raise InputError(f"{d}: the manual has no answers (POV-Ray needs the poses to draw)")
-        for key, build in m.builds():
-            for k, st in enumerate(build.steps):
-                if st.camera is None:
-                    raise InputError(f"{st.where or d}: the step states no camera")
-                if m.answers.build(key).steps[k].ids_path is None:
-                    raise InputError(f"{st.where or d}: the step has no instance map")
-        manuals.append(m)
-    return manuals
 
 
 def draw(jobs: list[tuple[str, str, int | None, int]], workers: int, ldraw: Path) -> list[Any]:
@@ -319,14 +261,14 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     try:
         if not 1 <= args.workers <= 16:
-            raise InputError(f"--workers must be 1..16, got {args.workers}")
+            raise lm.InputError(f"--workers must be 1..16, got {args.workers}")
         if not args.size_check:
             if args.out is None:
-                raise InputError("--out is required (or --size-check)")
+                raise lm.InputError("--out is required (or --size-check)")
             if args.out.exists() or args.out.is_symlink():
-                raise InputError(f"--out {args.out}: already exists (choose a new folder)")
-        manuals = check_inputs(args.data, args.ldraw)
-    except InputError as e:
+                raise lm.InputError(f"--out {args.out}: already exists (choose a new folder)")
+        manuals = lm.check_inputs(args.data, args.ldraw, ("povray", "nice"), "povray", "POV-Ray")
+    except lm.InputError as e:
         print(f"{PROG}: error: {e}", file=sys.stderr)
         return 2
     os.nice(10)
@@ -352,17 +294,7 @@ def main(argv: list[str] | None = None) -> int:
 def redraw_all(manuals: list[Any], args: argparse.Namespace) -> int:
     started = time.time()
     with atomic_folder(args.out, PROG, replace=False) as tmp:
-        jobs: list[tuple[str, str, int | None, int]] = []
-        for m in manuals:
-            dst = tmp / m.path.resolve().name
-            dst.mkdir()
-            for p in m.path.iterdir():
-                if p.is_file() and not p.name.startswith("."):
-                    shutil.copyfile(p, dst / p.name)  # the pictures are replaced
-            for key, build in m.builds():
-                for k in range(1, len(build.steps) + 1):
-                    jobs.append((str(m.path), str(dst), key, k))
-        rows = draw(jobs, args.workers, args.ldraw)
+        rows = draw(lm.copy_manuals(manuals, tmp), args.workers, args.ldraw)
         s = lm.summary(rows)
         s["povray_s_mean"] = s.pop("leocad_s_mean")
         s["seconds"] = round(time.time() - started, 1)

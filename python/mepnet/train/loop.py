@@ -314,9 +314,11 @@ def train(
     model = build_model(model_cfg).to(d.device)
     if init is not None and ckpt is None:
         # a Direct3D run from the detector's weights: its own heads keep their fresh values
-        own = {k: v for k, v in model.state_dict().items() if k not in init}
-        if model_cfg.head != "direct3d" or any(k.startswith(DIRECT3D_FROM_DETECTOR) for k in own):
-            own = {}
+        own = {
+            k: v
+            for k, v in model.state_dict().items()
+            if model_cfg.head == "direct3d" and not k.startswith(DIRECT3D_FROM_DETECTOR)
+        }
         load_state_strict(model, {**own, **init}, Path(str(cfg.init)))
     params = list(model.parameters())
     opt = torch.optim.AdamW(params, lr=cfg.lr, weight_decay=cfg.weight_decay)
