@@ -271,10 +271,26 @@ def test_regression_errors_are_measured_against_the_nearest_true_instance():
     assert _regression_metrics([]) is None
 
 
+def test_the_shipped_weights_are_direct3d_small_and_documented():
+    """The shipped Direct3D weights load as a Direct3D network, are at most 20 MB, and their
+    JSON says how they were trained and what they reach."""
+    from mepnet.stage2 import bundled_direct3d_weights
+
+    path = bundled_direct3d_weights()
+    model, cfg = load_model(path)
+    assert isinstance(model, Direct3DNet) and cfg.head == "direct3d"
+    assert path.stat().st_size <= 20 * 2**20
+    doc = json.loads(path.with_suffix(".json").read_text())
+    assert "--head direct3d" in doc["trained_with"]["command"]
+    assert doc["model_config"] == json.loads(json.dumps(cfg.to_dict()))
+    assert 0 < doc["metrics_20_test_manuals"]["ours"]["component_acc"] < 1
+
+
 def test_weights_that_do_not_fit_are_refused_in_one_line(tmp_path: Path, manuals: Path):
     data = manuals / "val"
-    # none shipped: the command says what to do
-    one_line_error(run("mepnet.eval", "--data", data, "--predictor", "direct3d"), "--weights")
+    # the shipped weights by default
+    r = run("mepnet.eval", "--data", data, "--predictor", "direct3d", "--cd-points", "200")
+    assert r.returncode == 0 and "direct3d" in r.stdout, r.stderr
     # the detector's weights are not Direct3D's, and Direct3D's are not the detector's
     det, d3, wrong = tmp_path / "det", tmp_path / "d3", tmp_path / "wrong"
     for folder in (det, d3, wrong):

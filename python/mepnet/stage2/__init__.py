@@ -9,7 +9,8 @@ Predictors behind one interface (:mod:`.base`) and a registry (:func:`make_predi
   positions or the true rotations swapped in (the supplementary's ablation, :mod:`.baselines`);
 - ``abys``: analysis-by-synthesis on the detector's masks (:mod:`.abys`, the paper's Table 3);
 - ``direct3d``: the paper's Direct3D baseline (:mod:`.direct3d`), from weights trained with
-  ``python -m mepnet.train --head direct3d`` (``--weights``; none are shipped yet).
+  ``python -m mepnet.train --head direct3d`` (``--weights``; default: the shipped ones,
+  ``data/weights/direct3d.safetensors``).
 """
 
 from __future__ import annotations
@@ -48,7 +49,7 @@ def bundled_weights() -> Path:
 
 
 def bundled_direct3d_weights() -> Path:
-    """Where shipped Direct3D weights would be (none are shipped yet)."""
+    """The shipped Direct3D weights (``direct3d.json`` beside them: how they were trained)."""
     return Path(str(resources.files("mepnet") / "data" / "weights" / "direct3d.safetensors"))
 
 
@@ -123,8 +124,8 @@ def make_predictor(
         path = Path(weights) if weights else bundled_direct3d_weights()
         if not weights and not path.exists():
             raise ConfigError(
-                "predictor 'direct3d' needs --weights: no Direct3D weights are shipped yet "
-                "(train them with python -m mepnet.train --head direct3d; docs/results.md)"
+                f"predictor 'direct3d': the shipped weights are missing ({path}); reinstall, "
+                "or give --weights (python -m mepnet.train --head direct3d; docs/results.md)"
             )
         model, cfg = _load(path, "direct3d", name)
         return Direct3DPredictor(model, cfg)  # type: ignore[arg-type]
