@@ -116,3 +116,51 @@ def test_the_plan_records_confidence_flags_and_revisions(manual_dir: Path):
     # teacher-forced runs and repair=False make no revisions
     off = run_manual(man, make_predictor("oracle"), repair=False)
     assert all(s.revisions == [] and s.repair_seconds == 0.0 for b in off.builds for s in b.steps)
+
+
+def test_a_tried_placement_drawn_over_the_rest_is_drawn_as_the_whole_shape(manual_dir: Path):
+    """The repair draws each placement it tries alone over the plan drawn without that
+    instance: that gives exactly the pixels drawing the whole plan gives (where it is drawn, and
+    where in colours unlike the page), in every view, for instances of any step and placements
+    in front of or behind the rest; with the page the part's own colour, so that a hidden part's
+    pixels counted as its own would show."""
+    import dataclasses
+
+    from mepnet.consistency import _Backdrop, _disagreement_with
+
+    m, _, _, placements = _truth(manual_dir)
+    steps = m.main.steps
+    views = [View.of(k + 1, steps[k].camera_object(), steps[k].image()) for k in range(len(steps))]
+    w = h = 256
+    compared = 0
+    for i in range(0, len(placements), max(1, len(placements) // 6)):
+        p = placements[i]
+        rest = placements[:i] + placements[i + 1 :]
+        rest_shape = build(rest)
+        if rest_shape is None:
+            continue
+        alone = _bg.Assembly()
+        alone.add(p.component, p.yaw, p.t, p.colour)
+        r = _bg.render(alone, views[-1].camera, w, h, line_px=0.0)
+        own = np.median(r.rgb[r.ids >= 0], axis=0).astype(np.float32)
+        pages = [dataclasses.replace(v, page=own) for v in views]
+        backdrops = [_Backdrop.of(rest, v, w, h) for v in pages]
+        page = ~views[-1].narrow
+        ranked, _ = _bg.abys_ranked(rest_shape, views[-1].camera, w, h, p.component, page, 4, 5.0)
+        for yaw, t in [(p.yaw, p.t)] + [(y, tuple(u)) for y, u, _ in ranked]:
+            moved = Placement(p.step, p.pred, p.component, yaw, t, p.colour)
+            trial = placements[:i] + [moved] + placements[i + 1 :]
+            shape = build(trial)
+            if shape is None:
+                continue
+            single = _bg.Assembly()
+            single.add(p.component, yaw, t, p.colour)
+            for v, b in zip(pages, backdrops, strict=True):
+                if p.step > v.step:
+                    continue
+                ids, seen = v.drawn(build([q for q in trial if q.step <= v.step]), w, h)
+                drawn, seen2 = b.over(single, w, h)
+                assert (drawn == (ids >= 0)).all() and (seen2 == seen).all()
+            assert _disagreement_with(moved, backdrops, w, h) == disagreement(trial, pages, w, h)
+            compared += 1
+    assert compared >= 6

@@ -113,6 +113,10 @@ def test_a_stack_is_found_when_its_bottom_is_never_a_first_choice(
     monkeypatch.setattr(synthesis, "LATER_FIRST", False)
     column = run_manual(m, make_predictor("synthesis"), teacher_forced=True)
     assert step_matches(column, column.main.steps[-1]) == 2  # the two as one column
+    # a column is kept only when it explains the picture clearly better
+    monkeypatch.setattr(synthesis, "COLUMN_MARGIN", 1.0)
+    unsure = run_manual(m, make_predictor("synthesis"), teacher_forced=True)
+    assert step_matches(unsure, unsure.main.steps[-1]) < 2
     monkeypatch.setattr(synthesis, "COLUMNS", False)
     greedy = run_manual(m, make_predictor("synthesis"), teacher_forced=True)
     assert step_matches(greedy, greedy.main.steps[-1]) < 2
@@ -376,3 +380,17 @@ def test_pruned_placement_ranking_equals_scoring_every_placement(tmp_path: Path)
                     assert pruned == _bg.abys_ranked(*args, exhaustive=True), (k, inst.id)
                     checked += 1
     assert checked >= 60
+
+
+def test_a_row_of_parts_a_cell_off_is_moved_as_a_whole(monkeypatch: pytest.MonkeyPatch):
+    """POV-Ray's picture (no edge lines) of four jumper plates in a row on the ground: placed
+    one at a time, the row ends half a stud off as a whole, every plate fitting what the ones
+    before it left; the step's parts moved together (``SHIFTS``) explain the picture better."""
+    import mepnet.stage2.synthesis as synthesis
+
+    m = load_manual(Path(__file__).parent / "data" / "povray_row")
+    run = run_manual(m, make_predictor("mepnet"), teacher_forced=True)
+    assert step_matches(run, run.main.steps[0]) == 4
+    monkeypatch.setattr(synthesis, "SHIFTS", ())
+    stuck = run_manual(m, make_predictor("mepnet"), teacher_forced=True)
+    assert step_matches(stuck, stuck.main.steps[0]) == 0

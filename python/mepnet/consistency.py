@@ -123,8 +123,16 @@ class View:
         colours the page could not be mistaken for (a white part on white paper is told from
         the page only by outlines other renderers may not draw: no evidence either way)."""
         r = _bg.render(shape, self.camera, w, h, line_px=0.0)
-        unlike = np.abs(r.rgb.astype(np.float32) - self.page).max(axis=2) > PAGE_LIKE
-        return r.ids, (r.ids >= 0) & unlike
+        return r.ids, (r.ids >= 0) & self.unlike(r.rgb)
+
+    def unlike(self, rgb: np.ndarray) -> np.ndarray:
+        """Where drawn colours ``rgb`` (..., 3) could not be mistaken for the page."""
+        return np.abs(rgb.astype(np.float32) - self.page).max(axis=-1) > PAGE_LIKE
+
+    def count(self, drawn: np.ndarray, seen: np.ndarray) -> int:
+        """The disagreement of a shape drawn at ``drawn`` (of it, ``seen`` in colours unlike
+        the page) with the picture (:func:`disagreement`)."""
+        return int((seen & ~self.wide).sum() + (self.narrow & ~drawn).sum())
 
 
 @dataclass(frozen=True)
@@ -166,7 +174,50 @@ def disagreement(placements: list[Placement], views: list[View], w: int, h: int)
             out.append(w * h)
             continue
         ids, seen = v.drawn(shape, w, h)
-        out.append(int((seen & ~v.wide).sum() + (v.narrow & (ids < 0)).sum()))
+        out.append(v.count(ids >= 0, seen))
+    return out
+
+
+@dataclass
+class _Backdrop:
+    """A view drawn without one instance (the shape as it was after the view's step): what
+    each placement tried for that instance is drawn over (:meth:`over`)."""
+
+    view: View
+    drawn: np.ndarray
+    depth: np.ndarray
+    seen: np.ndarray
+
+    @classmethod
+    def of(cls, rest: list[Placement], v: View, w: int, h: int) -> _Backdrop:
+        """The view ``v`` of ``rest`` (valid in order: so is every prefix of it)."""
+        shape = build([p for p in rest if p.step <= v.step])
+        assert shape is not None
+        r = _bg.render(shape, v.camera, w, h, line_px=0.0)
+        return cls(v, r.ids >= 0, r.depth, (r.ids >= 0) & v.unlike(r.rgb))
+
+    def over(self, alone: _bg.Assembly, w: int, h: int) -> tuple[np.ndarray, np.ndarray]:
+        """Where the backdrop's shape with the one part of ``alone`` added is drawn, and where
+        in colours unlike the page (:meth:`View.drawn`): the part drawn alone and laid over
+        the backdrop where it is in front, the same pixels as drawing the whole shape."""
+        r = _bg.render(alone, self.view.camera, w, h, line_px=0.0)
+        front = (r.ids >= 0) & (r.depth < self.depth)
+        seen = self.seen.copy()
+        seen[front] = self.view.unlike(r.rgb[front])
+        return self.drawn | (r.ids >= 0), seen
+
+
+def _disagreement_with(part: Placement, backdrops: list[_Backdrop], w: int, h: int) -> list[int]:
+    """Per backdrop, the disagreement (:func:`disagreement`) of its shape with ``part`` added
+    (:meth:`_Backdrop.over`; one part drawn instead of the whole shape)."""
+    alone = _bg.Assembly()
+    alone.add(part.component, part.yaw, part.t, part.colour)
+    out = []
+    for b in backdrops:
+        if part.step > b.view.step:
+            out.append(b.view.count(b.drawn, b.seen))
+        else:
+            out.append(b.view.count(*b.over(alone, w, h)))
     return out
 
 
@@ -212,12 +263,13 @@ def repair(
         judged = [v for v in views if v.step == sus.step] + [
             v for v in views[-REPAIR_VIEWS + 1 :] if v.step != sus.step
         ]
-        before_views = disagreement(placements, judged, w, h)
-        before = sum(before_views)
         rest = placements[:i] + placements[i + 1 :]
         rest_shape = build(rest)
         if rest_shape is None:
             continue  # later parts stand on it: left as it is
+        backdrops = [_Backdrop.of(rest, v, w, h) for v in judged]
+        before_views = _disagreement_with(sus, backdrops, w, h)
+        before = sum(before_views)
         tried: set[tuple[int, tuple[int, int, int]]] = {(sus.yaw, sus.t)}
         best: tuple[int, list[int], Placement] | None = None
         for v in {
@@ -237,7 +289,9 @@ def repair(
                 tried.add((yaw, tuple(t)))
                 moved = Placement(sus.step, sus.pred, sus.component, yaw, tuple(t), sus.colour)
                 trial = placements[:i] + [moved] + placements[i + 1 :]
-                per_view = disagreement(trial, judged, w, h)
+                if build(trial) is None:
+                    continue  # not valid where it stands in the plan's order
+                per_view = _disagreement_with(moved, backdrops, w, h)
                 if best is None or sum(per_view) < best[0]:
                     best = (sum(per_view), per_view, moved)
         if best is None:

@@ -387,17 +387,6 @@ def _solve(
         alt_score = _explained(ctx, alt_preds, mask, picture, tone)
         if alt_score > score + 1e-6:
             preds, score, taken, options = alt_preds, alt_score, alt_taken, alt_options
-    # identical parts stacked straight up: the lower ones show little until the ones above
-    # them are placed, and the upper ones are not valid before them, so a column of them is
-    # searched whole (its placements ranked as one component) and the rest solved greedily
-    total = sum(t.count for t in types)
-    for prefix in _columns(ctx, types, time_limit_s, wide, deadline) if COLUMNS else []:
-        if score >= WELL_EXPLAINED or _clock() >= deadline:
-            break
-        alt_preds, alt_taken, alt_options = _greedy(*args, prefix, wide, memo, deadline, drawn)
-        alt_score = _explained(ctx, alt_preds, mask, picture, tone)
-        if len(alt_preds) == total and alt_score > score + 1e-6:
-            preds, score, taken, options = alt_preds, alt_score, alt_taken, alt_options
     # each decision in turn: the next best choices there, the rest greedy again
     level = 0
     while score < WELL_EXPLAINED and level < len(taken) and _clock() < deadline:
@@ -414,6 +403,33 @@ def _solve(
                 preds, score, taken = alt_preds, alt_score, alt_taken
                 options = options[: level + 1] + alt_options[level + 1 :]
         level += 1
+    # identical parts stacked straight up: the lower ones show little until the ones above
+    # them are placed, and the upper ones are not valid before them, so a column of them is
+    # searched whole (its placements ranked as one component) and the rest solved greedily;
+    # last, with the time left, and kept only when it explains clearly more: a column hides
+    # its lower parts, so a picture that barely tells placements apart (dark parts on a dark
+    # base) is explained a little better by stacking parts out of sight
+    total = sum(t.count for t in types)
+    for prefix in _columns(ctx, types, time_limit_s, wide, deadline) if COLUMNS else []:
+        if score >= WELL_EXPLAINED or _clock() >= deadline:
+            break
+        alt_preds, alt_taken, _ = _greedy(*args, prefix, wide, memo, deadline, drawn)
+        alt_score = _explained(ctx, alt_preds, mask, picture, tone)
+        if len(alt_preds) == total and alt_score > score + COLUMN_MARGIN:
+            preds, score, taken = alt_preds, alt_score, alt_taken
+    # the step's parts moved together: placed one at a time, each fits what the ones before it
+    # left, so a row of parts can end up a cell off as a whole (every part a little off the
+    # picture, none better alone)
+    for dx, dz in SHIFTS if len(taken) == total and total > 1 else ():
+        if score >= WELL_EXPLAINED or _clock() >= deadline:
+            break
+        moved = [(i, yaw, (t[0] + dx, t[1], t[2] + dz)) for i, yaw, t in taken]
+        alt_preds, alt_taken, _ = _greedy(*args, moved, wide, memo, deadline, drawn)
+        if len(alt_preds) < total:
+            continue  # a moved part does not fit
+        alt_score = _explained(ctx, alt_preds, mask, picture, tone)
+        if alt_score > score + 1e-6:
+            preds, score, taken = alt_preds, alt_score, alt_taken
     return preds, score
 
 
@@ -435,6 +451,12 @@ First = tuple[int, int, tuple[int, int, int]]
 COLUMNS = True
 #: Column placements tried per type.
 COLUMN_CHOICES = 3
+#: Moves (lattice cells along x and z) of all a step's parts together tried when the step is
+#: explained worse than :data:`WELL_EXPLAINED` (:func:`_solve`).
+SHIFTS = ((1, 0), (-1, 0), (0, 1), (0, -1), (2, 0), (-2, 0), (0, 2), (0, -2))
+#: How much better (:func:`_explained`) a step solved with a column must explain its picture
+#: than the step solved without one.
+COLUMN_MARGIN = 0.03
 
 
 def _columns(
