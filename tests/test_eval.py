@@ -376,6 +376,11 @@ def test_pictures_alike_tells_what_no_picture_shows():
     moved[1] = build("3039", 0, False)[0]
     assert not pictures_alike(man, None, build("3039", 0, False), moved)
     assert pictures_alike(man, None, build("3039", 0, False), moved, start=1)
+    # a way that cannot be built (its later part collides with a wrong earlier one) is not the
+    # same picture, and says so rather than failing
+    blocked = build("3039", 0, False)
+    blocked[1] = [(part("3003"), 0, (0, 3, 0), 1)]  # where the slope already stands
+    assert pictures_alike(man, None, build("3039", 0, False), blocked) is False
 
 
 def test_error_kinds_say_what_went_wrong_with_each_missed_instance():

@@ -655,17 +655,21 @@ def pictures_alike(
     ``(component, yaw, t, colour)`` it adds) give the same picture at every step from
     ``start`` (0-based) on: drawn by mepnet's renderer with the manual's cameras, the two
     shapes after the step differ in at most :data:`DRAWN_TOLERANCE_PX` pixels. None when a step
-    has no camera."""
+    has no camera; False when one way cannot be built (a placement collides: a wrong step's
+    parts put in place of the truth's, with the true later steps after them)."""
     build = manual.main if key is None else manual.submodules[key]
     if any(st.camera is None for st in build.steps[start:]):
         return None
     w, h = manual.image_size
     a, b = _bg.Assembly(), _bg.Assembly()
     for k, (xa, xb) in enumerate(zip(first, second, strict=True)):
-        for x in xa:
-            a.add(*x)
-        for x in xb:
-            b.add(*x)
+        try:
+            for x in xa:
+                a.add(*x)
+            for x in xb:
+                b.add(*x)
+        except BrickGeomError:
+            return False
         if k < start:
             continue
         cam = build.steps[k].camera_object()
