@@ -127,3 +127,22 @@ def test_the_latest_picture_of_the_same_view_is_used_and_parts_added_since_are_n
     only_turned = StepContext(steps[k], base, comps, m.image_size, earlier[1:])
     assert previous_picture(only_turned) is None
     assert previous_picture(StepContext(steps[k], base, comps, m.image_size)) is None
+
+
+def test_a_first_part_drawn_large_is_the_change_not_the_page():
+    """A build's first step: nothing built, the state render is the bare page. A first part
+    drawn over most of the picture is what changed; the page around it is not (the brightness
+    shift comes from the picture's border, not from most of its pixels). A tinted page is
+    still the page."""
+    from mepnet.state import change_map, fit_tone
+
+    for page in ((1.0, 1.0, 1.0), (0.93, 0.9, 0.8)):
+        image = np.empty((3, 64, 64), np.float32)
+        image[:] = np.array(page, np.float32)[:, None, None]
+        image[:, 6:60, 4:62] = np.array([0.6, 0.05, 0.05], np.float32)[:, None, None]  # 76%
+        state = np.ones((3, 64, 64), np.float32)  # the page as mepnet draws it
+        change = change_map(image, state, fit_tone(image, state))
+        assert (change[6:60, 4:62] > CHANGE_THRESHOLD).all()
+        outside = np.ones((64, 64), bool)
+        outside[6:60, 4:62] = False
+        assert (change[outside] <= CHANGE_THRESHOLD).all()

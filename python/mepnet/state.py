@@ -140,7 +140,19 @@ def fit_gain_bias(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
 
 def fit_tone(image: np.ndarray, state: np.ndarray) -> np.ndarray:
     """(2, 3): per channel, the gain (row 0) and bias (row 1) mapping the state render onto the
-    image (both (3, H, W)), fitted to the pixels that did not change (:func:`fit_gain_bias`)."""
+    image (both (3, H, W)), fitted to the pixels that did not change (:func:`fit_gain_bias`).
+
+    A blank state render (a build's first step: nothing built, only the page) has only a
+    brightness shift to find, and the page is what surrounds the drawing: the shift is the
+    picture's border against the render's, not most of the picture's pixels (a first part
+    drawn large covers most of them)."""
+    if all(float(state[c].var()) < 1e-4 for c in range(3)):
+        border = np.concatenate(
+            [image[:, 0, :], image[:, -1, :], image[:, :, 0], image[:, :, -1]], axis=1
+        )
+        return np.array(
+            [[1.0, float(np.median(border[c]) - np.median(state[c]))] for c in range(3)]
+        ).T
     return np.array(
         [
             fit_gain_bias(state[c].ravel().astype(np.float64), image[c].ravel().astype(np.float64))
