@@ -132,7 +132,10 @@ def test_bad_input_exits_2(tmp_path: Path, manuals: Path):
             ["--data", str(manuals), "--predictor", "mepnet", "--weights", str(tmp_path / "w")],
             "weights not found",
         ),
-        (["--data", str(manuals), "--predictor", "direct3d"], "no Direct3D weights"),
+        (
+            ["--data", str(manuals), "--predictor", "direct3d", "--weights", str(tmp_path / "w")],
+            "weights not found",
+        ),
         (["--data", str(manuals), "--predictor", "abys", "--time-limit", "0"], "--time-limit"),
         (["--data", str(manuals), "--predictor", "oracle-noisy", "--sigma", "-1"], "--sigma"),
     ]
