@@ -374,17 +374,22 @@ def _solve(
         mask |= t.mask
     memo: dict[frozenset[First], tuple[Any, list[tuple[float, First]]]] = {}
     drawn: dict[First, _Drawn] = {}
-    args = (ctx, types, time_limit_s, picture, tone)
-    preds, taken, options = _greedy(*args, [], wide, memo, deadline, drawn)
-    score = _explained(ctx, preds, mask, picture, tone)
+
+    def attempt(prefix: list[First]) -> tuple[list[Prediction], list[First], Any, float]:
+        """The greedy with its first decisions forced to ``prefix``, and how well it explains."""
+        p, t, o = _greedy(
+            ctx, types, time_limit_s, picture, tone, prefix, wide, memo, deadline, drawn
+        )
+        return p, t, o, _explained(ctx, p, mask, picture, tone)
+
+    preds, taken, options, score = attempt([])
     # a later decision taken first: a part that shows little until what stands on it is
     # placed (the bottom brick of a stack, hidden by the top one) is never among the first
     # choices, and the top one is not valid before it
     for later in list(taken[1:]) if LATER_FIRST else []:
         if score >= WELL_EXPLAINED or _clock() >= deadline:
             break
-        alt_preds, alt_taken, alt_options = _greedy(*args, [later], wide, memo, deadline, drawn)
-        alt_score = _explained(ctx, alt_preds, mask, picture, tone)
+        alt_preds, alt_taken, alt_options, alt_score = attempt([later])
         if alt_score > score + 1e-6:
             preds, score, taken, options = alt_preds, alt_score, alt_taken, alt_options
     # each decision in turn: the next best choices there, the rest greedy again
@@ -395,10 +400,7 @@ def _solve(
                 break
             if alt == taken[level]:
                 continue
-            alt_preds, alt_taken, alt_options = _greedy(
-                *args, [*taken[:level], alt], wide, memo, deadline, drawn
-            )
-            alt_score = _explained(ctx, alt_preds, mask, picture, tone)
+            alt_preds, alt_taken, alt_options, alt_score = attempt([*taken[:level], alt])
             if alt_score > score + 1e-6:
                 preds, score, taken = alt_preds, alt_score, alt_taken
                 options = options[: level + 1] + alt_options[level + 1 :]
@@ -413,8 +415,7 @@ def _solve(
     for prefix in _columns(ctx, types, time_limit_s, wide, deadline) if COLUMNS else []:
         if score >= WELL_EXPLAINED or _clock() >= deadline:
             break
-        alt_preds, alt_taken, _ = _greedy(*args, prefix, wide, memo, deadline, drawn)
-        alt_score = _explained(ctx, alt_preds, mask, picture, tone)
+        alt_preds, alt_taken, _, alt_score = attempt(prefix)
         if len(alt_preds) == total and alt_score > score + COLUMN_MARGIN:
             preds, score, taken = alt_preds, alt_score, alt_taken
     # the step's parts moved together: placed one at a time, each fits what the ones before it
@@ -424,11 +425,8 @@ def _solve(
         if score >= WELL_EXPLAINED or _clock() >= deadline:
             break
         moved = [(i, yaw, (t[0] + dx, t[1], t[2] + dz)) for i, yaw, t in taken]
-        alt_preds, alt_taken, _ = _greedy(*args, moved, wide, memo, deadline, drawn)
-        if len(alt_preds) < total:
-            continue  # a moved part does not fit
-        alt_score = _explained(ctx, alt_preds, mask, picture, tone)
-        if alt_score > score + 1e-6:
+        alt_preds, alt_taken, _, alt_score = attempt(moved)
+        if len(alt_preds) == total and alt_score > score + 1e-6:  # each moved part fits
             preds, score, taken = alt_preds, alt_score, alt_taken
     return preds, score
 
@@ -586,6 +584,9 @@ def _greedy(
     taken: list[First] = []
     options: list[list[First]] = []
     shape_depth: np.ndarray | None = None  # of asm, rendered when first needed
+    # the first instance id placed since the shape was last drawn: drawn again only when a
+    # round searches (forced and remembered rounds, and the last, need no drawing)
+    pending: int | None = None
     while any(left):
         best: tuple[float, int, tuple[int, tuple[int, int, int]], dict[str, Any]] | None = None
         ranked_here: list[tuple[float, First]] = []
@@ -597,6 +598,13 @@ def _greedy(
             best = (0.0, i, (yaw, tr), {"forced": True})
         elif cached:
             best, ranked_here = memo[key]  # type: ignore[index]
+        elif pending is not None:
+            # what the parts placed since explain: the pixels one of them is drawn in front
+            # (every pixel a part was in front of when placed stays one of theirs)
+            shape = _bg.render(asm, cam, w, h, line_px=0.0)
+            unexplained &= shape.ids < pending
+            shape_depth = shape.depth  # this round's candidates are drawn against it
+            pending = None
         for i, t in enumerate(types):
             if forced or cached or not left[i]:
                 continue
@@ -657,9 +665,8 @@ def _greedy(
             return preds, taken, options
         taken.append((i, yaw, tr))
         options.append([f for _, f in sorted(ranked_here, key=lambda x: -x[0])])
-        shape = _bg.render(asm, cam, w, h, line_px=0.0)
-        unexplained &= shape.ids != new_id
-        shape_depth = shape.depth  # the next round's candidates are drawn against it
+        if pending is None:
+            pending = new_id
         left[i] -= 1
         entry = types[i].entry
         ref = ctx.step.components[entry].component
