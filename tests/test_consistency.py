@@ -126,7 +126,7 @@ def test_a_tried_placement_drawn_over_the_rest_is_drawn_as_the_whole_shape(manua
     pixels counted as its own would show."""
     import dataclasses
 
-    from mepnet.consistency import _Backdrop, _disagreement_with
+    from mepnet.consistency import _backdrops, _disagreement_with
 
     m, _, _, placements = _truth(manual_dir)
     steps = m.main.steps
@@ -144,7 +144,7 @@ def test_a_tried_placement_drawn_over_the_rest_is_drawn_as_the_whole_shape(manua
         r = _bg.render(alone, views[-1].camera, w, h, line_px=0.0)
         own = np.median(r.rgb[r.ids >= 0], axis=0).astype(np.float32)
         pages = [dataclasses.replace(v, page=own) for v in views]
-        backdrops = [_Backdrop.of(rest, v, w, h) for v in pages]
+        backdrops = _backdrops(rest, pages, w, h)
         page = ~views[-1].narrow
         ranked, _ = _bg.abys_ranked(rest_shape, views[-1].camera, w, h, p.component, page, 4, 5.0)
         for yaw, t in [(p.yaw, p.t)] + [(y, tuple(u)) for y, u, _ in ranked]:

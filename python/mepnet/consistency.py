@@ -188,14 +188,6 @@ class _Backdrop:
     depth: np.ndarray
     seen: np.ndarray
 
-    @classmethod
-    def of(cls, rest: list[Placement], v: View, w: int, h: int) -> _Backdrop:
-        """The view ``v`` of ``rest`` (valid in order: so is every prefix of it)."""
-        shape = build([p for p in rest if p.step <= v.step])
-        assert shape is not None
-        r = _bg.render(shape, v.camera, w, h, line_px=0.0)
-        return cls(v, r.ids >= 0, r.depth, (r.ids >= 0) & v.unlike(r.rgb))
-
     def over(self, alone: _bg.Assembly, w: int, h: int) -> tuple[np.ndarray, np.ndarray]:
         """Where the backdrop's shape with the one part of ``alone`` added is drawn, and where
         in colours unlike the page (:meth:`View.drawn`): the part drawn alone and laid over
@@ -205,6 +197,21 @@ class _Backdrop:
         seen = self.seen.copy()
         seen[front] = self.view.unlike(r.rgb[front])
         return self.drawn | (r.ids >= 0), seen
+
+
+def _backdrops(rest: list[Placement], views: list[View], w: int, h: int) -> list[_Backdrop]:
+    """Each view of ``rest`` (valid in the plan's order, so step by step), the shape as it was
+    after the view's step: one pass adding the placements, drawn at each view's step."""
+    asm = _bg.Assembly()
+    n = 0
+    out: dict[int, _Backdrop] = {}
+    for v in sorted(views, key=lambda v: v.step):
+        while n < len(rest) and rest[n].step <= v.step:
+            asm.add(rest[n].component, rest[n].yaw, rest[n].t, rest[n].colour)
+            n += 1
+        r = _bg.render(asm, v.camera, w, h, line_px=0.0)
+        out[id(v)] = _Backdrop(v, r.ids >= 0, r.depth, (r.ids >= 0) & v.unlike(r.rgb))
+    return [out[id(v)] for v in views]
 
 
 def _disagreement_with(part: Placement, backdrops: list[_Backdrop], w: int, h: int) -> list[int]:
@@ -267,7 +274,7 @@ def repair(
         rest_shape = build(rest)
         if rest_shape is None:
             continue  # later parts stand on it: left as it is
-        backdrops = [_Backdrop.of(rest, v, w, h) for v in judged]
+        backdrops = _backdrops(rest, judged, w, h)
         before_views = _disagreement_with(sus, backdrops, w, h)
         before = sum(before_views)
         tried: set[tuple[int, tuple[int, int, int]]] = {(sus.yaw, sus.t)}

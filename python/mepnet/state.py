@@ -145,7 +145,8 @@ def fit_tone(image: np.ndarray, state: np.ndarray) -> np.ndarray:
     A blank state render (a build's first step: nothing built, only the page) has only a
     brightness shift to find, and the page is what surrounds the drawing: the shift is the
     picture's border against the render's, not most of the picture's pixels (a first part
-    drawn large covers most of them)."""
+    drawn large covers most of them; the border's median, as ``foreground_mask`` finds the
+    page)."""
     if all(float(state[c].var()) < 1e-4 for c in range(3)):
         border = np.concatenate(
             [image[:, 0, :], image[:, -1, :], image[:, :, 0], image[:, :, -1]], axis=1
