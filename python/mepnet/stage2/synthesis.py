@@ -258,7 +258,10 @@ def synthesize(
     visible pixels may leave more of the change unexplained); before that, a step adding
     several instances is solved again
     with each later decision of the greedy taken first (:data:`LATER_FIRST`: a stack's bottom,
-    hidden by its top, is no first choice, and its top is not valid before it).
+    hidden by its top, is no first choice, and its top is not valid before it). A decision
+    forced first keeps its round's choices for the revisits. After the revisits, a step of
+    three or more instances takes each pair of its decisions again last, in the context of
+    all the others (:data:`PAIRS`: two parts each at the other's place).
 
     Parts stand on the ground beside the base shape (on a build's first step: anywhere the
     picture changed); when the solution explains the picture
@@ -405,6 +408,26 @@ def _solve(
                 preds, score, taken = alt_preds, alt_score, alt_taken
                 options = options[: level + 1] + alt_options[level + 1 :]
         level += 1
+    # each pair of decisions taken again in the context of all the others: two parts each at
+    # the other's place (the greedy placed the first where the second belongs, and the second
+    # fitted what was left) are no single decision's next choice
+    n = len(taken)
+    pairs = [(a, b) for a in range(n) for b in range(a + 1, n)] if PAIRS and n > 2 else []
+    for a, b in pairs * PAIR_PASSES:
+        if score >= WELL_EXPLAINED or _clock() >= deadline or len(taken) != n:
+            break
+        prefix = [f for x, f in enumerate(taken) if x not in (a, b)]
+        first = attempt(prefix)
+        # and the next best choices of the round that places the first of the two
+        alts = first[2][len(prefix)][1:PAIR_CHOICES] if len(first[2]) > len(prefix) else []
+        for alt in [None, *alts]:
+            if alt is not None and _clock() >= deadline:
+                break
+            alt_preds, alt_taken, alt_options, alt_score = (
+                first if alt is None else attempt([*prefix, alt])
+            )
+            if alt_score > score + 1e-6:
+                preds, score, taken, options = alt_preds, alt_score, alt_taken, alt_options
     # identical parts stacked straight up: the lower ones show little until the ones above
     # them are placed, and the upper ones are not valid before them, so a column of them is
     # searched whole (its placements ranked as one component) and the rest solved greedily;
@@ -444,6 +467,13 @@ FIRST_CHOICES = 3
 #: A decision of :func:`_greedy`: (type index, yaw, translation).
 First = tuple[int, int, tuple[int, int, int]]
 
+#: Whether a step of three or more instances explained worse than :data:`WELL_EXPLAINED` is
+#: also solved with each pair of its decisions taken again last (:func:`_solve`).
+PAIRS = True
+#: Choices tried for the first of a pair taken again (its greedy's own included).
+PAIR_CHOICES = 4
+#: Passes over the pairs (a pair taken again may leave another pair to mend).
+PAIR_PASSES = 2
 #: Whether a step adding several identical parts explained worse than :data:`WELL_EXPLAINED`
 #: is also solved with them stacked in one column (:func:`_columns`).
 COLUMNS = True
@@ -596,6 +626,10 @@ def _greedy(
         if forced:
             i, yaw, tr = prefix[len(preds)]
             best = (0.0, i, (yaw, tr), {"forced": True})
+            if memo is not None and key in memo:
+                # the round's own ranking, as an unforced greedy found it: the choices a
+                # revisit of this decision tries
+                ranked_here = memo[key][1]
         elif cached:
             best, ranked_here = memo[key]  # type: ignore[index]
         elif pending is not None:
