@@ -146,3 +146,71 @@ def test_a_first_part_drawn_large_is_the_change_not_the_page():
         outside = np.ones((64, 64), bool)
         outside[6:60, 4:62] = False
         assert (change[outside] <= CHANGE_THRESHOLD).all()
+
+
+def _lit_flat(asm: _bg.Assembly, cam: dict, size: int = 256) -> np.ndarray:
+    """``asm`` drawn as a renderer lit almost flat draws it (every face at 0.95 of its colour,
+    where mepnet shades faces 0.6-0.9): mepnet's drawing divided by its own shading."""
+    from mepnet.state import shade_classes
+
+    rgb = _picture(asm, cam, size)
+    white = _bg.Assembly()
+    for _, comp, yaw, t in asm.instances():
+        white.add(comp, yaw, t, 15)
+    shade = _picture(white, cam, size).mean(axis=0)
+    lit = np.where(shade > 0.3, rgb / np.maximum(shade, 1e-3) * 0.95, rgb)
+    assert (shade_classes(asm, cam, size) >= 0).sum() > 1000
+    return np.clip(lit, 0.0, 1.0).astype(np.float32)
+
+
+def test_faces_lit_another_way_are_mapped_by_the_previous_picture():
+    """A renderer lighting faces its own way (LeoCAD: nearly flat) with no earlier picture of
+    the same view: one gain and bias per channel leaves the base's faces changed; the tone per
+    shade class learnt from the previous step's picture (another view: lighting follows the
+    camera) maps them, and the new part stays changed."""
+    from mepnet.state import change_map, fit_tone, shade_classes, shade_tones, state_render
+
+    base = _shape()
+    shape = base.copy()
+    shape.add(_bg.Component.primitive("3003"), 0, (-3, 6, 0), 2)
+    turned = dict(CAM, azimuth=135.0)
+    previous, picture = _lit_flat(base, CAM), _lit_flat(shape, turned)
+    seen, _ = state_render(base, CAM, 256)
+    tones = shade_tones(previous, seen, shade_classes(base, CAM, 256))
+    state, _ = state_render(base, turned, 256)
+    ids = _bg.render(shape, make_camera(turned), 256, 256).ids
+    old, new = ids >= 0, ids == 2
+    plain = change_map(picture, state, fit_tone(picture, state)) > CHANGE_THRESHOLD
+    shaded = (
+        change_map(
+            picture, state, fit_tone(picture, state), (shade_classes(base, turned, 256), tones)
+        )
+        > CHANGE_THRESHOLD
+    )
+    kept = old & ~new
+    assert plain[kept].mean() > 0.3  # one tone: the base's faces read as changed
+    assert shaded[kept].mean() < 0.1
+    assert shaded[new].mean() > 0.8
+
+
+def test_lines_drawn_on_the_bases_stud_rims_are_not_changes():
+    """A renderer drawing every edge of the base thick (stud rims too, as LeoCAD outlines
+    them): within a pixel of the edges of mepnet's drawing of the base a change is kept only
+    where a change outside that band or one thicker than a line reaches it, so the rims go and
+    a new part drawn over the base's edges stays whole."""
+    from mepnet.stage2.synthesis import drawn_edges, tolerate_lines
+    from mepnet.state import change_map, fit_tone, state_render
+
+    base = _shape()
+    shape = base.copy()
+    shape.add(_bg.Component.primitive("3003"), 0, (-3, 6, 0), 2)
+    r = _bg.render(shape, make_camera(CAM), 256, 256, style=_bg.RenderStyle(line_px=2.0))
+    picture = r.rgb.transpose(2, 0, 1) / 255.0
+    state, outline = state_render(base, CAM, 256)
+    change = change_map(picture, state, fit_tone(picture, state))
+    parts = tolerate_lines(change, outline) > CHANGE_THRESHOLD  # part outlines only
+    rims = tolerate_lines(change, outline | drawn_edges(state)) > CHANGE_THRESHOLD
+    new = r.ids == 2
+    old = (r.ids >= 0) & ~new
+    assert parts[old].mean() > 0.15 and rims[old].mean() < 0.05
+    assert rims[new].mean() > 0.95

@@ -21,6 +21,8 @@ __all__ = [
     "outline_of",
     "previous_change",
     "same_view",
+    "shade_classes",
+    "shade_tones",
     "state_projection",
     "state_render",
     "warp_previous",
@@ -162,18 +164,72 @@ def fit_tone(image: np.ndarray, state: np.ndarray) -> np.ndarray:
     ).T
 
 
-def change_map(image: np.ndarray, state: np.ndarray, tone: np.ndarray | None = None) -> np.ndarray:
+def change_map(
+    image: np.ndarray,
+    state: np.ndarray,
+    tone: np.ndarray | None = None,
+    shades: tuple[np.ndarray, dict[int, np.ndarray]] | None = None,
+) -> np.ndarray:
     """Where the manual image differs from the rendered base shape, (H, W) in [0, 1]: per
     channel, the state render is first mapped onto the image by its tone fit (``tone``, else
     :func:`fit_tone`), so a manual printed in other colours or brightness still compares; then
-    the largest absolute residual over the channels."""
+    the largest absolute residual over the channels. ``shades``: the state render's shade
+    classes (:func:`shade_classes`) and a tone per class (:func:`shade_tones`), used instead
+    of ``tone`` on the pixels of those classes (a renderer that lights faces its own way)."""
     if tone is None:
         tone = fit_tone(image, state)
     out = np.zeros(image.shape[1:], np.float32)
     for c in range(3):
         gain, bias = float(tone[0, c]), float(tone[1, c])
-        np.maximum(out, np.abs(image[c] - (gain * state[c] + bias)), out=out)
+        mapped = gain * state[c] + bias
+        if shades is not None:
+            classes, tones = shades
+            for k, t in tones.items():
+                sel = classes == k
+                mapped[sel] = t[0, c] * state[c][sel] + t[1, c]
+        np.maximum(out, np.abs(image[c] - mapped), out=out)
     return np.clip(out, 0.0, 1.0)
+
+
+#: Brightness levels the shade classes of :func:`shade_classes` are told apart at.
+SHADE_LEVELS = 20
+#: A shade class gets its own tone (:func:`shade_tones`) from at least this many pixels.
+SHADE_MIN_PX = 100
+
+
+def shade_classes(asm: _bg.Assembly, camera: dict[str, Any], size: int) -> np.ndarray:
+    """Per pixel of ``asm`` drawn with ``camera``, how mepnet's renderer lights it: the shape
+    drawn all white, its brightness in :data:`SHADE_LEVELS` levels (faces facing one way share a
+    level; outlines the darkest); -1 on the page. (size, size) int."""
+    out = np.full((size, size), -1, np.int32)
+    if len(asm) == 0:
+        return out
+    white = _bg.Assembly()
+    for _, comp, yaw, t in asm.instances():
+        white.add(comp, yaw, t, 15)
+    r = _bg.render(white, make_camera(camera), size, size)
+    level = np.rint(r.rgb.mean(axis=2) / 255.0 * SHADE_LEVELS).astype(np.int32)
+    return np.where(r.ids >= 0, level, out)
+
+
+def shade_tones(image: np.ndarray, state: np.ndarray, classes: np.ndarray) -> dict[int, np.ndarray]:
+    """Per shade class (:func:`shade_classes`) of at least :data:`SHADE_MIN_PX` pixels, the tone
+    ((2, 3) gain and bias per channel, :func:`fit_gain_bias`) mapping the state render onto
+    ``image`` (both (3, H, W)): fitted on a picture that shows exactly the shape rendered (the
+    previous step's, which shows the base of this one), so no new part pulls it; another
+    renderer lights faces its own way (LeoCAD draws the faces mepnet shades at 0.62 at 1.0)."""
+    out = {}
+    for k in np.unique(classes[classes >= 0]):
+        sel = classes == k
+        if sel.sum() < SHADE_MIN_PX:
+            continue
+        out[int(k)] = np.array(
+            [
+                fit_gain_bias(state[c][sel].astype(np.float64), image[c][sel].astype(np.float64))
+                for c in range(3)
+            ]
+        ).T
+    return out
 
 
 #: Largest difference (degrees) of elevation, azimuth or roll for which two cameras count as

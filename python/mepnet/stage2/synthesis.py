@@ -40,6 +40,8 @@ from mepnet.state import (
     fit_tone,
     previous_change,
     same_view,
+    shade_classes,
+    shade_tones,
     state_render,
     warp_previous,
 )
@@ -98,22 +100,64 @@ def _max_filter(a: np.ndarray, r: int) -> np.ndarray:
     return out
 
 
+#: A step of this much (any channel, in [0, 1]) between neighbouring pixels of mepnet's drawing
+#: of the base is an edge another renderer may draw as a line (a stud's rim, a face's edge).
+EDGE_STEP = 0.08
+
+
+def drawn_edges(state: np.ndarray) -> np.ndarray:
+    """Where mepnet's drawing of the base ((3, H, W) in [0, 1]) steps by :data:`EDGE_STEP`
+    between neighbouring pixels: (H, W) bool."""
+    dx = np.abs(np.diff(state, axis=2)).max(axis=0) > EDGE_STEP
+    dy = np.abs(np.diff(state, axis=1)).max(axis=0) > EDGE_STEP
+    out = np.zeros(state.shape[1:], bool)
+    out[:, 1:] |= dx
+    out[:, :-1] |= dx
+    out[1:, :] |= dy
+    out[:-1, :] |= dy
+    return out
+
+
 def tolerate_lines(change: np.ndarray, outline: np.ndarray) -> np.ndarray:
     """The change map with the base's outlines discounted when the picture draws its lines
     unlike our renderer (thicker, fainter, blurred): then every part edge of the base reads as
-    changed. Within :data:`LINE_BAND` px of the base's outlines a pixel keeps its change only
-    as far as a change outside the band reaches it (:data:`LINE_REACH` px: the new part it
-    borders). Applied only when more than :data:`LINE_MISMATCH` of the band shows changes no
+    changed. ``outline``: the base's part outlines and the edges of mepnet's drawing of it
+    (:func:`drawn_edges`: stud rims, which other renderers outline). Within :data:`LINE_BAND` px of
+    them a pixel keeps its change only as far as a change outside the band, or one thicker
+    than a line inside it, reaches it (:data:`LINE_REACH` px: the new part it borders or that
+    is drawn over them). Applied only when more than :data:`LINE_MISMATCH` of the band shows changes no
     such part explains, so a picture drawn as we draw keeps its map (thin new slivers along old
     edges included)."""
     band = _max_filter(outline.astype(np.uint8), LINE_BAND).astype(bool)
     if not band.any():
         return change
-    reach = _max_filter(np.where(band, 0.0, change).astype(change.dtype), LINE_REACH)
-    isolated = band & (change > CHANGE_THRESHOLD) & (reach <= CHANGE_THRESHOLD)
+    # what reaches into the band: changes outside it, and changes thicker than a line within
+    # it (they survive narrowing by a pixel: a new part drawn over the base's edges)
+    changed = change > CHANGE_THRESHOLD
+    thick = ~_max_filter((~changed).astype(np.uint8), 1).astype(bool)
+    reach = _max_filter(np.where(thick | ~band, change, 0.0).astype(change.dtype), LINE_REACH)
+    isolated = band & changed & (reach <= CHANGE_THRESHOLD)
     if isolated.sum() <= LINE_MISMATCH * band.sum():
         return change
     return np.where(band, np.minimum(change, reach), change)
+
+
+def base_shades(ctx: StepContext, size: int) -> tuple[np.ndarray, dict[int, np.ndarray]] | None:
+    """The base's shade classes seen with the step's camera and their tones
+    (:func:`mepnet.state.shade_tones`) learnt from the previous step's picture, which shows the
+    base and nothing else (from any view: lighting follows the camera); None when there is no
+    such picture (a build's first two steps, a previous step without a camera)."""
+    if not ctx.earlier or len(ctx.base) == 0:
+        return None
+    prev = ctx.earlier[-1]
+    if prev.step.camera is None or prev.instances != len(ctx.base):
+        return None
+    seen, _ = state_render(ctx.base, prev.step.camera, size)
+    picture = prev.step.image().astype(np.float32).transpose(2, 0, 1) / 255.0
+    if picture.shape[1:] != seen.shape[1:]:
+        return None
+    tones = shade_tones(picture, seen, shade_classes(ctx.base, prev.step.camera, size))
+    return shade_classes(ctx.base, ctx.step.camera, size), tones  # type: ignore[arg-type]
 
 
 def step_change(ctx: StepContext, picture: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -128,7 +172,7 @@ def step_change(ctx: StepContext, picture: np.ndarray) -> tuple[np.ndarray, np.n
     state, outline = state_render(ctx.base, ctx.step.camera, w)  # type: ignore[arg-type]
     image = picture.transpose(2, 0, 1)
     tone = fit_tone(image, state)
-    change = change_map(image, state, tone)
+    change = change_map(image, state, tone, base_shades(ctx, w))
     before = previous_picture(ctx)
     if before is not None:
         # a pixel the manual's own picture of the base explains has not changed, however
@@ -137,7 +181,7 @@ def step_change(ctx: StepContext, picture: np.ndarray) -> tuple[np.ndarray, np.n
         np.minimum(
             change, np.where(trusted, previous_change(image, picture_before), 1.0), out=change
         )
-    change = tolerate_lines(change, outline)
+    change = tolerate_lines(change, outline | drawn_edges(state))
     fill_enclosed(change, picture, ctx, None if before is None else before[0])
     return change, tone
 
