@@ -442,7 +442,7 @@ def _solve(
     # each decision in turn: the next best choices there, the rest greedy again
     level = 0
     while score < WELL_EXPLAINED and level < len(taken) and _clock() < deadline:
-        for alt in options[level][1:FIRST_CHOICES]:
+        for alt in options[level][1 : LEAD_CHOICES if level == 0 else FIRST_CHOICES]:
             if _clock() >= deadline:
                 break
             if alt == taken[level]:
@@ -507,6 +507,10 @@ LATER_FIRST = True
 #: Choices tried at each decision of a multi-instance step explained worse (the greedy's own
 #: included).
 FIRST_CHOICES = 3
+#: ... and at its first decision, which all the others are taken in the light of (two equal
+#: bricks side by side: the greedy's first puts one across the middle of both, the true left
+#: one is its fourth choice).
+LEAD_CHOICES = 4
 
 #: A decision of :func:`_greedy`: (type index, yaw, translation).
 First = tuple[int, int, tuple[int, int, int]]
