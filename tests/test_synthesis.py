@@ -50,6 +50,19 @@ def stack(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return manual_from_ldraw(STACK, tmp_path_factory.mktemp("stack"))
 
 
+def _earlier_revisits(monkeypatch: pytest.MonkeyPatch, choices: int | None = None) -> None:
+    """Stage 2's revisits as they were before stop 39 (no pairs, the first decision revisited
+    like the others, forced decisions without choices; ``choices``: at every decision), so
+    that a test shows what the mechanism it is about buys on its own."""
+    import mepnet.stage2.synthesis as synthesis
+
+    if choices is not None:
+        monkeypatch.setattr(synthesis, "FIRST_CHOICES", choices)
+    monkeypatch.setattr(synthesis, "LEAD_CHOICES", synthesis.FIRST_CHOICES)
+    monkeypatch.setattr(synthesis, "PAIRS", False)
+    monkeypatch.setattr(synthesis, "REVISIT_FORCED", False)
+
+
 def test_a_stack_of_equal_parts_is_solved_as_a_whole(stack: Path, monkeypatch: pytest.MonkeyPatch):
     """The round brick that best fits the whole stack's pixels is one standing off the
     column's axis; revisiting the greedy's decisions finds the stack itself, and so does
@@ -62,7 +75,7 @@ def test_a_stack_of_equal_parts_is_solved_as_a_whole(stack: Path, monkeypatch: p
     assert step_matches(run, last) == 3
     assert [p.t[1] for p in last.predictions] == [6, 9, 12]  # bottom to top
     assert not any(p.extra.get("over_budget") for p in last.predictions)
-    monkeypatch.setattr(synthesis, "FIRST_CHOICES", 1)  # no revisits
+    _earlier_revisits(monkeypatch, 1)  # no revisits
     column = run_manual(m, make_predictor("synthesis"), teacher_forced=True)
     assert step_matches(column, column.main.steps[-1]) == 3  # what the column search buys
     monkeypatch.setattr(synthesis, "COLUMNS", False)  # the greedy alone
@@ -110,6 +123,7 @@ def test_a_stack_is_found_when_its_bottom_is_never_a_first_choice(
     run = run_manual(m, make_predictor("synthesis"), teacher_forced=True)
     last = run.main.steps[-1]
     assert step_matches(run, last) == 2
+    _earlier_revisits(monkeypatch)
     monkeypatch.setattr(synthesis, "LATER_FIRST", False)
     column = run_manual(m, make_predictor("synthesis"), teacher_forced=True)
     assert step_matches(column, column.main.steps[-1]) == 2  # the two as one column
@@ -347,7 +361,7 @@ def test_a_single_part_is_revisited_when_it_explains_the_change_poorly(
     monkeypatch.setattr(synthesis, "TYPE_WEIGHT", 5.0)  # the belief outweighs the overlap
     (p,) = synthesize(ctx, types, picture=picture, tone=tone)
     assert comp.same_placement(p.yaw, p.t, truth.yaw, truth.t)
-    monkeypatch.setattr(synthesis, "FIRST_CHOICES", 1)  # the greedy alone
+    _earlier_revisits(monkeypatch, 1)  # the greedy alone
     (q,) = synthesize(ctx, types, picture=picture, tone=tone)
     assert not comp.same_placement(q.yaw, q.t, truth.yaw, truth.t)  # drawn to the decoy
 
@@ -391,6 +405,7 @@ def test_a_row_of_parts_a_cell_off_is_moved_as_a_whole(monkeypatch: pytest.Monke
     m = load_manual(Path(__file__).parent / "data" / "povray_row")
     run = run_manual(m, make_predictor("mepnet"), teacher_forced=True)
     assert step_matches(run, run.main.steps[0]) == 4
+    _earlier_revisits(monkeypatch)
     monkeypatch.setattr(synthesis, "SHIFTS", ())
     stuck = run_manual(m, make_predictor("mepnet"), teacher_forced=True)
     assert step_matches(stuck, stuck.main.steps[0]) == 0

@@ -515,6 +515,9 @@ LEAD_CHOICES = 4
 #: A decision of :func:`_greedy`: (type index, yaw, translation).
 First = tuple[int, int, tuple[int, int, int]]
 
+#: Whether a decision forced first (:data:`LATER_FIRST`, a revisit's prefix) keeps its round's
+#: ranking, so that a revisit can try its next choices (:func:`_greedy`).
+REVISIT_FORCED = True
 #: Whether a step of three or more instances explained worse than :data:`WELL_EXPLAINED` is
 #: also solved with each pair of its decisions taken again last (:func:`_solve`).
 PAIRS = True
@@ -674,7 +677,7 @@ def _greedy(
         if forced:
             i, yaw, tr = prefix[len(preds)]
             best = (0.0, i, (yaw, tr), {"forced": True})
-            if memo is not None and key in memo:
+            if REVISIT_FORCED and memo is not None and key in memo:
                 # the round's own ranking, as an unforced greedy found it: the choices a
                 # revisit of this decision tries
                 ranked_here = memo[key][1]
