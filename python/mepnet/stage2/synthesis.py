@@ -122,12 +122,12 @@ def tolerate_lines(change: np.ndarray, outline: np.ndarray) -> np.ndarray:
     """The change map with the base's outlines discounted when the picture draws its lines
     unlike our renderer (thicker, fainter, blurred): then every part edge of the base reads as
     changed. ``outline``: the base's part outlines and the edges of mepnet's drawing of it
-    (:func:`drawn_edges`: stud rims, which other renderers outline). Within :data:`LINE_BAND` px of
-    them a pixel keeps its change only as far as a change outside the band, or one thicker
-    than a line inside it, reaches it (:data:`LINE_REACH` px: the new part it borders or that
-    is drawn over them). Applied only when more than :data:`LINE_MISMATCH` of the band shows changes no
-    such part explains, so a picture drawn as we draw keeps its map (thin new slivers along old
-    edges included)."""
+    (:func:`drawn_edges`: stud rims, which other renderers outline). Within
+    :data:`LINE_BAND` px of them a pixel keeps its change only as far as a change outside the
+    band, or one thicker than a line inside it, reaches it (:data:`LINE_REACH` px: the new part
+    it borders or that is drawn over them). Applied only when more than :data:`LINE_MISMATCH`
+    of the band shows changes no such part explains, so a picture drawn as we draw keeps its
+    map (thin new slivers along old edges included)."""
     band = _max_filter(outline.astype(np.uint8), LINE_BAND).astype(bool)
     if not band.any():
         return change
@@ -145,8 +145,8 @@ def tolerate_lines(change: np.ndarray, outline: np.ndarray) -> np.ndarray:
 def base_shades(ctx: StepContext, size: int) -> tuple[np.ndarray, dict[int, np.ndarray]] | None:
     """The base's shade classes seen with the step's camera and their tones
     (:func:`mepnet.state.shade_tones`) learnt from the previous step's picture, which shows the
-    base and nothing else (from any view: lighting follows the camera); None when there is no
-    such picture (a build's first two steps, a previous step without a camera)."""
+    base and nothing else (from any view: lighting follows the camera); None on a build's first
+    step and when the previous step has no camera."""
     if not ctx.earlier or len(ctx.base) == 0:
         return None
     prev = ctx.earlier[-1]
