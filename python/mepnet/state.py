@@ -156,11 +156,14 @@ def fit_tone(image: np.ndarray, state: np.ndarray) -> np.ndarray:
         return np.array(
             [[1.0, float(np.median(border[c]) - np.median(state[c]))] for c in range(3)]
         ).T
+    return _channel_tones(image.reshape(3, -1), state.reshape(3, -1))
+
+
+def _channel_tones(image: np.ndarray, state: np.ndarray) -> np.ndarray:
+    """(2, 3): per channel the gain and bias (:func:`fit_gain_bias`) mapping ``state`` onto
+    ``image``, both (3, N) pixels."""
     return np.array(
-        [
-            fit_gain_bias(state[c].ravel().astype(np.float64), image[c].ravel().astype(np.float64))
-            for c in range(3)
-        ]
+        [fit_gain_bias(state[c].astype(np.float64), image[c].astype(np.float64)) for c in range(3)]
     ).T
 
 
@@ -178,17 +181,17 @@ def change_map(
     of ``tone`` on the pixels of those classes (a renderer that lights faces its own way)."""
     if tone is None:
         tone = fit_tone(image, state)
-    out = np.zeros(image.shape[1:], np.float32)
-    for c in range(3):
-        gain, bias = float(tone[0, c]), float(tone[1, c])
-        mapped = gain * state[c] + bias
-        if shades is not None:
-            classes, tones = shades
-            for k, t in tones.items():
-                sel = classes == k
-                mapped[sel] = t[0, c] * state[c][sel] + t[1, c]
-        np.maximum(out, np.abs(image[c] - mapped), out=out)
-    return np.clip(out, 0.0, 1.0)
+    # per pixel and channel the gain and bias: the tone's, or its shade class's
+    gain = np.broadcast_to(tone[0][:, None, None], state.shape).astype(state.dtype)
+    bias = np.broadcast_to(tone[1][:, None, None], state.shape).astype(state.dtype)
+    if shades is not None:
+        classes, tones = shades
+        for k, t in tones.items():
+            sel = classes == k
+            gain[:, sel] = t[0][:, None]
+            bias[:, sel] = t[1][:, None]
+    out = np.abs(image - (gain * state + bias)).max(axis=0)
+    return np.clip(out, 0.0, 1.0).astype(np.float32)
 
 
 #: Brightness levels the shade classes of :func:`shade_classes` are told apart at.
@@ -223,12 +226,7 @@ def shade_tones(image: np.ndarray, state: np.ndarray, classes: np.ndarray) -> di
         sel = classes == k
         if sel.sum() < SHADE_MIN_PX:
             continue
-        out[int(k)] = np.array(
-            [
-                fit_gain_bias(state[c][sel].astype(np.float64), image[c][sel].astype(np.float64))
-                for c in range(3)
-            ]
-        ).T
+        out[int(k)] = _channel_tones(image[:, sel], state[:, sel])
     return out
 
 
