@@ -100,6 +100,29 @@ def test_a_step_out_of_time_keeps_its_first_solution_and_says_so(
     assert any("ran out of time" in f for f in last.check.flags)
 
 
+def test_a_solution_cut_short_never_wins(stack: Path, monkeypatch: pytest.MonkeyPatch):
+    """A greedy whose forced first decision does not fit ends early with the parts placed so
+    far. Galaxy Explorer main step 10 (12 black plates on a black model, the greedy's
+    solution explaining less than nothing: colours off by more than the overlap): the attempt
+    with a later plate taken first placed nothing, explained 0 and won; the step lost all 12.
+    Here every forced attempt is cut short at once and every complete one explains badly."""
+    import mepnet.stage2.synthesis as synthesis
+
+    greedy, explained = synthesis._greedy, synthesis._explained
+
+    def cut_short(ctx, types, limit, picture, tone, prefix, *rest):  # type: ignore[no-untyped-def]
+        return ([], [], []) if prefix else greedy(ctx, types, limit, picture, tone, prefix, *rest)
+
+    def badly(ctx, preds, *rest):  # type: ignore[no-untyped-def]
+        return explained(ctx, preds, *rest) - 1.0 if preds else 0.0
+
+    monkeypatch.setattr(synthesis, "_greedy", cut_short)
+    monkeypatch.setattr(synthesis, "_explained", badly)
+    run = run_manual(load_manual(stack), make_predictor("synthesis"), teacher_forced=True)
+    last = run.main.steps[-1]
+    assert len(last.predictions) == 3 and all(p.placed for p in last.predictions)
+
+
 #: A wall of two 1x6 bricks, then a stack of two 1x6 bricks on the ground in front of it.
 FRONT_STACK = """0 a stack in front of a wall
 1 4 0 -24 40 1 0 0 0 1 0 0 0 1 3009.dat

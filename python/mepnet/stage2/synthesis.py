@@ -422,11 +422,19 @@ def _solve(
     memo: dict[frozenset[First], tuple[Any, list[tuple[float, First]]]] = {}
     drawn: dict[First, _Drawn] = {}
 
+    total = sum(t.count for t in types)
+
     def attempt(prefix: list[First]) -> tuple[list[Prediction], list[First], Any, float]:
-        """The greedy with its first decisions forced to ``prefix``, and how well it explains."""
+        """The greedy with its first decisions forced to ``prefix``, and how well it explains;
+        a greedy cut short by a forced decision that does not fit (a pair taken again whose
+        other parts stood on it, a column or a shift) explains nothing (``-inf``): its parts
+        left out would otherwise cost nothing, and a step's wrong part dropped explains the
+        picture better than placed."""
         p, t, o = _greedy(
             ctx, types, time_limit_s, picture, tone, prefix, wide, memo, deadline, drawn
         )
+        if len(p) < total:
+            return p, t, o, float("-inf")
         return p, t, o, _explained(ctx, p, mask, picture, tone)
 
     preds, taken, options, score = attempt([])
@@ -478,12 +486,11 @@ def _solve(
     # last, with the time left, and kept only when it explains clearly more: a column hides
     # its lower parts, so a picture that barely tells placements apart (dark parts on a dark
     # base) is explained a little better by stacking parts out of sight
-    total = sum(t.count for t in types)
     for prefix in _columns(ctx, types, time_limit_s, wide, deadline) if COLUMNS else []:
         if score >= WELL_EXPLAINED or _clock() >= deadline:
             break
         alt_preds, alt_taken, _, alt_score = attempt(prefix)
-        if len(alt_preds) == total and alt_score > score + COLUMN_MARGIN:
+        if alt_score > score + COLUMN_MARGIN:
             preds, score, taken = alt_preds, alt_score, alt_taken
     # the step's parts moved together: placed one at a time, each fits what the ones before it
     # left, so a row of parts can end up a cell off as a whole (every part a little off the
@@ -493,7 +500,7 @@ def _solve(
             break
         moved = [(i, yaw, (t[0] + dx, t[1], t[2] + dz)) for i, yaw, t in taken]
         alt_preds, alt_taken, _, alt_score = attempt(moved)
-        if len(alt_preds) == total and alt_score > score + 1e-6:  # each moved part fits
+        if alt_score > score + 1e-6:
             preds, score, taken = alt_preds, alt_score, alt_taken
     return preds, score
 
