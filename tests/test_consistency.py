@@ -164,3 +164,21 @@ def test_a_tried_placement_drawn_over_the_rest_is_drawn_as_the_whole_shape(manua
             assert _disagreement_with(moved, backdrops, w, h) == disagreement(trial, pages, w, h)
             compared += 1
     assert compared >= 6
+
+
+def test_a_tie_a_later_step_tells_apart_is_settled_there(tmp_path: Path):
+    """Fresh F20 manual 1 step 7: a 2x2 corner plate wholly hidden under a 2x4 brick placed in
+    the same step; two of its places explain the picture equally (stage 2 keeps the other as a
+    tie) and it took the wrong one. Step 14's part then cannot stand where the picture shows it
+    (the wrong plate is in the way): predicted again on the tie, step 14 explains its picture
+    better, and the plan takes the tie: the whole manual is built exactly right."""
+    from mepnet.plan import built_exactly
+
+    man = load_manual(next(iter(iter_manual_dirs(generate_manuals(tmp_path, 1, 930001)))))
+    run = run_manual(man, make_predictor("mepnet"))
+    step7 = run.main.steps[6]
+    assert any(p.extra.get("ties") for p in step7.predictions)
+    revised = [r for s in run.main.steps for r in s.revisions]
+    assert [(r.step, r.found_at) for r in revised] == [(7, 14)]
+    assert revised[0].disagreement[1] < revised[0].disagreement[0]
+    assert built_exactly(run)

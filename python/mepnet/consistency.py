@@ -32,6 +32,8 @@ class StepCheck:
 
     confidence: float | None
     flags: list[str] = field(default_factory=list)
+    #: pixels changed where no placed part is drawn, or drawn where nothing changed
+    unexplained: int = 0
 
 
 def check_step(ctx: StepContext, preds: list[Prediction], shape: _bg.Assembly) -> StepCheck:
@@ -62,7 +64,7 @@ def check_step(ctx: StepContext, preds: list[Prediction], shape: _bg.Assembly) -
             f"the picture is not explained: the placed parts cover {100 * confidence:.0f}% "
             "of what changed"
         )
-    return StepCheck(round(confidence, 4), flags)
+    return StepCheck(round(confidence, 4), flags, union - int((new & change).sum()))
 
 
 # ---------------------------------------------------------------------------------------------

@@ -43,7 +43,7 @@ from mepnet.frames import (
 from mepnet.geom import BrickGeomError, submodule_from_placed
 from mepnet.ldraw.io import LDrawFile, LDrawModel, LDrawRef, ldraw_placement
 from mepnet.ldraw.io import write as write_ldraw
-from mepnet.manual import Build, ComponentRef, Manual, StepTruth
+from mepnet.manual import Build, ComponentRef, Manual, Step, StepTruth
 from mepnet.stage2 import Prediction, Predictor, StepContext, predict_step
 from mepnet.stage2.base import EarlierStep
 
@@ -146,6 +146,8 @@ def run_build(
     earlier: list[EarlierStep] = []  # the page steps so far, with the cameras predicted with
     placements: list[Placement] = []  # the shape built so far, in order (autoregressive)
     views: list[View] = []  # the pictures so far as the repair sees them
+    # the latest steps whose pictures could not tell solutions apart: (step, the others)
+    open_ties: list[tuple[int, list[list[tuple[int, int, tuple[int, int, int]]]]]] = []
     w, h = manual.image_size
     for k, step in enumerate(build.steps):
         truth = full_truth = answers.truth(k) if answers is not None else None
@@ -181,38 +183,71 @@ def run_build(
             preds, seconds, camera = _estimated_camera_step(
                 cameras, predict, page_step, base, components, teacher_forced
             )
-        # back to the page's entry numbering, and a failure for every entry left out
-        preds = [dataclasses.replace(p, entry=kept[p.entry]) for p in preds]
-        for e, c in enumerate(step.components):
-            if e not in kept:
-                why = f"submodule {manual.submodules[c.component.submodule].name} was not built"  # type: ignore[index]
-                preds += [
-                    Prediction(e, c.component, None, None, failure=why) for _ in range(c.count)
-                ]
-        # the predictions join the shape (teacher-forced: a trial copy; the true step joins it)
-        before = base.copy()
-        built = base.copy() if teacher_forced else base
-        placed: list[Placed | None] = []
-        for j, p in enumerate(preds):
-            pl: Placed | None = None
-            if p.placed and p.failure is None:
-                colour = step.components[p.entry].colour
-                try:
-                    built.add(components[p.component], p.yaw, p.t, colour)
-                    pl = (p.component, int(p.yaw), tuple(p.t), colour)  # type: ignore[arg-type]
-                    placements.append(
-                        Placement(k + 1, j, components[p.component], pl[1], pl[2], colour)
-                    )
-                except BrickGeomError as e:  # a predictor other than stage 2 may collide
-                    p.failure = str(e)
-            placed.append(pl)
         seen = None if camera.camera is None else camera.step_camera()
         page_seen = dataclasses.replace(step, camera=seen)
-        checked = check_step(
-            StepContext(page_seen, before, components, manual.image_size, tuple(earlier)),
-            preds,
-            built,
-        )
+
+        def finish(
+            preds: list[Prediction],
+            before: _bg.Assembly,
+            step: Step = step,
+            k: int = k,
+            kept: list[int] = kept,
+            page_seen: Step = page_seen,
+            earlier: tuple[EarlierStep, ...] = tuple(earlier),
+        ) -> tuple[list[Prediction], list[Placed | None], list[Placement], _bg.Assembly, StepCheck]:
+            """The step's predictions back in the page's entry numbering (a failure for every
+            entry left out) placed on a copy of the shape ``before`` and checked: the
+            predictions, what each placed, the new placements, the shape after, the check."""
+            preds = [dataclasses.replace(p, entry=kept[p.entry]) for p in preds]
+            for e, c in enumerate(step.components):
+                if e not in kept:
+                    why = f"submodule {manual.submodules[c.component.submodule].name} was not built"  # type: ignore[index]
+                    preds += [
+                        Prediction(e, c.component, None, None, failure=why) for _ in range(c.count)
+                    ]
+            built = before.copy()
+            placed: list[Placed | None] = []
+            new: list[Placement] = []
+            for j, p in enumerate(preds):
+                pl: Placed | None = None
+                if p.placed and p.failure is None:
+                    colour = step.components[p.entry].colour
+                    try:
+                        built.add(components[p.component], p.yaw, p.t, colour)
+                        pl = (p.component, int(p.yaw), tuple(p.t), colour)  # type: ignore[arg-type]
+                        new.append(
+                            Placement(k + 1, j, components[p.component], pl[1], pl[2], colour)
+                        )
+                    except BrickGeomError as e:  # a predictor other than stage 2 may collide
+                        p.failure = str(e)
+                placed.append(pl)
+            checked = check_step(
+                StepContext(page_seen, before, components, manual.image_size, earlier),
+                preds,
+                built,
+            )
+            return preds, placed, new, built, checked
+
+        # the predictions join the shape (teacher-forced: a trial copy; the true step joins it)
+        preds, placed, new, built, checked = finish(preds, base)
+        tie_revisions: list[Revision] = []
+        if not teacher_forced:
+            if repair and seen is not None and open_ties:
+                preds, placed, new, built, checked, placements, tie_revisions = _try_ties(
+                    run,
+                    open_ties,
+                    placements,
+                    (preds, placed, new, built, checked),
+                    lambda b, page=page_seen, predict=predict, finish=finish: finish(
+                        predict(page, base=b)[0], b
+                    ),
+                )
+            base = built
+            ties = next((p.extra["ties"] for p in preds if p.extra.get("ties")), None)
+            if ties:
+                open_ties.append((k + 1, [[(kept[e], y, t) for e, y, t in alt] for alt in ties]))
+                del open_ties[:-TIE_STEPS]
+        placements += new
         if teacher_forced:
             for inst in full_truth.placed():  # type: ignore[union-attr]
                 base.add(components[inst.component], inst.yaw, inst.t, inst.colour)
@@ -236,12 +271,131 @@ def run_build(
                 rebuilt = build_placements(placements)
                 assert rebuilt is not None  # the repair keeps every placement valid
                 base = rebuilt
-            run.steps[-1].revisions = revisions
+            run.steps[-1].revisions = tie_revisions + revisions
             run.steps[-1].repair_seconds = time.perf_counter() - t0
         earlier.append(EarlierStep(page_seen, len(base)))
         if on_step is not None:
             on_step()
     return run
+
+
+#: A step explained worse than this (its check's confidence) is predicted again on each
+#: solution of an earlier step that the earlier picture could not tell apart from the one
+#: taken (stage 2's ``extra["ties"]``): a later part's true place may collide with a part the
+#: tie hid, or need the side stud it turned away.
+TIE_RETRY_BELOW = 0.9
+#: ... and such a solution is taken when the step then explains its picture this much better.
+TIE_GAIN = 0.01
+#: The latest steps with ties kept open (each retry predicts the step again).
+TIE_STEPS = 4
+
+Finished = tuple[list[Prediction], list["Placed | None"], list[Placement], _bg.Assembly, StepCheck]
+
+
+def _tie_placements(
+    placements: list[Placement],
+    s: StepRun,
+    alt: list[tuple[int, int, tuple[int, int, int]]],
+) -> list[Placement] | None:
+    """``placements`` with step ``s``'s replaced by the solution ``alt`` ((page entry, yaw,
+    translation) per instance, in the order it was solved): each instance takes a prediction
+    of its entry, one it leaves in place first; None when the two do not match."""
+    mine = [p for p in placements if p.step == s.index]
+    free = list(mine)
+    chosen: list[Placement | None] = []
+    for e, yaw, t in alt:
+        hit = next(
+            (
+                p
+                for p in free
+                if s.predictions[p.pred].entry == e
+                and p.component.same_placement(p.yaw, p.t, yaw, t)
+            ),
+            None,
+        )
+        if hit is not None:
+            free.remove(hit)
+        chosen.append(hit)
+    block = []
+    for (e, yaw, t), hit in zip(alt, chosen, strict=True):
+        if hit is None:
+            hit = next((p for p in free if s.predictions[p.pred].entry == e), None)
+            if hit is None:
+                return None
+            free.remove(hit)
+        block.append(dataclasses.replace(hit, yaw=yaw, t=tuple(t)))
+    if free or len(block) != len(mine):
+        return None
+    at = placements.index(mine[0])
+    rest = [p for p in placements if p.step != s.index]
+    return rest[:at] + block + rest[at:]
+
+
+def _try_ties(
+    run: BuildRun,
+    open_ties: list[tuple[int, list[list[tuple[int, int, tuple[int, int, int]]]]]],
+    placements: list[Placement],
+    done: Finished,
+    again: Callable[[_bg.Assembly], Finished],
+) -> tuple[
+    list[Prediction],
+    list[Placed | None],
+    list[Placement],
+    _bg.Assembly,
+    StepCheck,
+    list[Placement],
+    list[Revision],
+]:
+    """A step explained worse than :data:`TIE_RETRY_BELOW` predicted again (``again``, on a
+    shape) on each open tie of an earlier step (latest first): the first that explains the
+    step better by :data:`TIE_GAIN` is taken, the earlier step's predictions revised.
+    ``done``: the step as predicted; ``placements``: the plan before it. Returns the step's
+    (possibly new) predictions, what they placed, its new placements, the shape after it and
+    its check, the plan's placements before it, and the revisions."""
+    preds, placed, new, built, checked = done
+    if checked.confidence is None or checked.confidence >= TIE_RETRY_BELOW:
+        return preds, placed, new, built, checked, placements, []
+    k = len(run.steps) + 1
+    for n in range(len(open_ties) - 1, -1, -1):
+        j, alts = open_ties[n]
+        s = run.steps[j - 1]
+        for alt in alts:
+            trial = _tie_placements(placements, s, alt)
+            shape = None if trial is None else build_placements(trial)
+            if shape is None:
+                continue
+            try:
+                result = again(shape)
+            except (MepnetError, BrickGeomError):
+                continue
+            check = result[4]
+            if check.confidence is None or check.confidence < checked.confidence + TIE_GAIN:
+                continue
+            revisions = []
+            for p in trial:  # type: ignore[union-attr]
+                if p.step != j:
+                    continue
+                old = s.placed[p.pred]
+                if old is None or (old[1], old[2]) == (p.yaw, p.t):
+                    continue
+                revisions.append(
+                    Revision(
+                        j,
+                        p.pred,
+                        (old[1], old[2]),
+                        (p.yaw, p.t),
+                        k,
+                        (checked.unexplained, check.unexplained),
+                    )
+                )
+                q = s.predictions[p.pred]
+                s.predictions[p.pred] = dataclasses.replace(
+                    q, yaw=p.yaw, t=p.t, extra={**q.extra, "revised_at": k}
+                )
+                s.placed[p.pred] = (old[0], p.yaw, p.t, old[3])
+            del open_ties[n]
+            return (*result, trial, revisions)  # type: ignore[return-value]
+    return preds, placed, new, built, checked, placements, []
 
 
 #: A camera check this good ends the search over a step's camera hypotheses.
@@ -390,7 +544,9 @@ def run_manual(
     submodule used as the shape its own steps built. ``teacher_forced``: every step on the true
     shape, submodules as they truly are (needs the answers). ``on_step`` is called after every
     step (progress bars). ``repair`` (autoregressive only): after every step, earlier
-    placements its picture contradicts are re-placed (:func:`mepnet.consistency.repair`)."""
+    placements its picture contradicts are re-placed (:func:`mepnet.consistency.repair`), and
+    a step explained poorly is predicted again on each tie of the latest earlier steps
+    (solutions their pictures could not tell apart, :data:`TIE_RETRY_BELOW`)."""
     if teacher_forced:
         from mepnet.manual import answers_of
 

@@ -318,7 +318,12 @@ def synthesize(
     is not searched again; the greedy under way is finished, each of its remaining placement searches
     limited to what is left of the budget but at least :data:`MIN_SEARCH_S` (a step whose
     pictures match nothing -- a wrong camera -- would otherwise search for many minutes). The
-    predictions of a step that ran out of budget say so (``extra["over_budget"]``)."""
+    predictions of a step that ran out of budget say so (``extra["over_budget"]``).
+
+    Other complete solutions tried that explain the picture as well (within :data:`TIE`: a
+    part hidden under the step's others) are handed on as the step's ties
+    (``extra["ties"]`` on every prediction, :func:`_ties`): a later step's picture may tell
+    them apart (:func:`mepnet.plan.run_build`)."""
     deadline = _clock() + (STEP_BUDGET_S if budget_s is None else budget_s)
     if not COLOUR_WEIGHT:
         picture = None
@@ -328,14 +333,78 @@ def synthesize(
         tone = np.array([[1.0, 1.0, 1.0], [0.0, 0.0, 0.0]])  # gain, bias per channel
     # a build's first step: every part stands on the ground, wherever the picture shows it
     first = len(ctx.base) == 0
-    preds, score = _solve(ctx, types, time_limit_s, picture, tone, first, deadline)
+    preds, score, tried = _solve(ctx, types, time_limit_s, picture, tone, first, deadline)
     if score < WIDE_BELOW and not first and _clock() < deadline:
-        wide, wide_score = _solve(ctx, types, time_limit_s, picture, tone, True, deadline)
+        wide, wide_score, wide_tried = _solve(
+            ctx, types, time_limit_s, picture, tone, True, deadline
+        )
         if wide_score > score + WIDE_MARGIN and not _hidden_on_ground(ctx, wide, preds):
-            preds = wide
-    if _clock() >= deadline:
-        preds = [dataclasses.replace(p, extra={**p.extra, "over_budget": True}) for p in preds]
+            preds, score, tried = wide, wide_score, wide_tried
+    ties = _ties(ctx, preds, score, tried)
+    if _clock() >= deadline or ties:
+        over = _clock() >= deadline
+        preds = [
+            dataclasses.replace(
+                p, extra={**p.extra, **({"over_budget": True} if over else {}), "ties": ties}
+            )
+            if ties or over
+            else p
+            for p in preds
+        ]
     return preds
+
+
+#: Other solutions of a step explaining its picture within this much of the kept one
+#: (:func:`_explained`) are its ties: the picture cannot tell them apart (a part hidden under
+#: the step's others; a side stud facing away), a later step may (``extra["ties"]``).
+TIE = 1e-3
+#: Ties kept per step, best first.
+MAX_TIES = 3
+
+
+def _placements(preds: list[Prediction]) -> list[tuple[int, int, tuple[int, int, int]]]:
+    """The placed predictions as (entry, yaw, translation)."""
+    return [(p.entry, int(p.yaw), tuple(p.t)) for p in preds if p.placed]  # type: ignore[arg-type,misc]
+
+
+def _ties(
+    ctx: StepContext,
+    preds: list[Prediction],
+    score: float,
+    tried: list[tuple[float, list[Prediction]]],
+) -> list[list[tuple[int, int, tuple[int, int, int]]]]:
+    """The complete solutions in ``tried`` that explain the picture within :data:`TIE` of
+    ``preds``' ``score`` and place some part otherwise (a symmetric part's equal yaws are one
+    placement), at most :data:`MAX_TIES`, best first: each as (entry, yaw, translation) per
+    instance."""
+
+    def same(a: list[Prediction], b: list[Prediction]) -> bool:
+        left = [p for p in b if p.placed]
+        for p in a:
+            comp = ctx.components[p.component]
+            hit = next(
+                (
+                    q
+                    for q in left
+                    if q.entry == p.entry and comp.same_placement(p.yaw, p.t, q.yaw, q.t)
+                ),
+                None,
+            )
+            if hit is None:
+                return False
+            left.remove(hit)
+        return not left
+
+    out: list[list[Prediction]] = []
+    for s, alt in sorted(tried, key=lambda x: -x[0]):
+        if len(out) == MAX_TIES or s < score - TIE:
+            break
+        if not all(p.placed for p in alt) or len(alt) != len(preds):
+            continue
+        if same(alt, preds) or any(same(alt, o) for o in out):
+            continue
+        out.append(alt)
+    return [_placements(alt) for alt in out]
 
 
 #: CPU seconds (:func:`_clock`) one step's synthesis may take before it stops revisiting
@@ -410,11 +479,11 @@ def _solve(
     tone: np.ndarray,
     wide: bool,
     deadline: float = float("inf"),
-) -> tuple[list[Prediction], float]:
+) -> tuple[list[Prediction], float, list[tuple[float, list[Prediction]]]]:
     """:func:`synthesize`'s greedy with its revisits, the ground searched beside the base or
     (``wide``) wherever the picture changed, no revisit begun after ``deadline``
-    (:func:`_clock`); returns the predictions and how well they explain the picture
-    (:func:`_explained`)."""
+    (:func:`_clock`); returns the predictions, how well they explain the picture
+    (:func:`_explained`), and every complete solution tried with its score."""
     w, h = ctx.image_size
     mask = np.zeros((h, w), bool)
     for t in types:
@@ -423,6 +492,8 @@ def _solve(
     drawn: dict[First, _Drawn] = {}
 
     total = sum(t.count for t in types)
+
+    tried: list[tuple[float, list[Prediction]]] = []  # every complete solution and its score
 
     def attempt(prefix: list[First]) -> tuple[list[Prediction], list[First], Any, float]:
         """The greedy with its first decisions forced to ``prefix``, and how well it explains;
@@ -435,7 +506,9 @@ def _solve(
         )
         if len(p) < total:
             return p, t, o, float("-inf")
-        return p, t, o, _explained(ctx, p, mask, picture, tone)
+        score = _explained(ctx, p, mask, picture, tone)
+        tried.append((score, p))
+        return p, t, o, score
 
     preds, taken, options, score = attempt([])
     # a later decision taken first: a part that shows little until what stands on it is
@@ -502,7 +575,7 @@ def _solve(
         alt_preds, alt_taken, _, alt_score = attempt(moved)
         if alt_score > score + 1e-6:
             preds, score, taken = alt_preds, alt_score, alt_taken
-    return preds, score
+    return preds, score, tried
 
 
 #: A multi-instance step whose parts explain the changed pixels at least this well
