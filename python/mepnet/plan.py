@@ -231,8 +231,10 @@ def run_build(
         # the predictions join the shape (teacher-forced: a trial copy; the true step joins it)
         preds, placed, new, built, checked = finish(preds, base)
         tie_revisions: list[Revision] = []
+        tie_seconds = 0.0  # the step predicted again on ties: part of the repair's time
         if not teacher_forced:
             if repair and seen is not None and open_ties:
+                t0 = time.perf_counter()
                 preds, placed, new, built, checked, placements, tie_revisions = _try_ties(
                     run,
                     open_ties,
@@ -242,6 +244,7 @@ def run_build(
                         predict(page, base=b)[0], b
                     ),
                 )
+                tie_seconds = time.perf_counter() - t0
             base = built
             ties = next((p.extra["ties"] for p in preds if p.extra.get("ties")), None)
             if ties:
@@ -272,7 +275,7 @@ def run_build(
                 assert rebuilt is not None  # the repair keeps every placement valid
                 base = rebuilt
             run.steps[-1].revisions = tie_revisions + revisions
-            run.steps[-1].repair_seconds = time.perf_counter() - t0
+            run.steps[-1].repair_seconds = time.perf_counter() - t0 + tie_seconds
         earlier.append(EarlierStep(page_seen, len(base)))
         if on_step is not None:
             on_step()
