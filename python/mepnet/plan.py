@@ -291,6 +291,26 @@ TIE_RETRY_BELOW = 0.9
 TIE_GAIN = 0.01
 #: The latest steps with ties kept open (each retry predicts the step again).
 TIE_STEPS = 4
+#: ... and a tie is tried only where a part it moves (at either place) comes within this many
+#: lattice cells (x, y, z: half-studs, plates) of a part the step placed: what a later step
+#: can tell about a hidden part is where its own parts meet it.
+TIE_NEAR = (2, 3, 2)
+
+
+def _box(p: Placement) -> tuple[tuple[int, int, int], tuple[int, int, int]]:
+    """The lattice box a placement fills."""
+    alone = _bg.Assembly()
+    alone.add(p.component, p.yaw, p.t, 0)
+    box = alone.bounds()
+    assert box is not None
+    return box
+
+
+def _near(a: Placement, b: Placement) -> bool:
+    """Whether the boxes of ``a`` and ``b`` come within :data:`TIE_NEAR` of each other."""
+    (alo, ahi), (blo, bhi) = _box(a), _box(b)
+    return all(max(alo[i] - bhi[i], blo[i] - ahi[i]) <= TIE_NEAR[i] for i in range(3))
+
 
 Finished = tuple[list[Prediction], list["Placed | None"], list[Placement], _bg.Assembly, StepCheck]
 
@@ -350,7 +370,8 @@ def _try_ties(
     list[Revision],
 ]:
     """A step explained worse than :data:`TIE_RETRY_BELOW` predicted again (``again``, on a
-    shape) on each open tie of an earlier step (latest first): the first that explains the
+    shape) on each open tie of an earlier step (latest first) that moves a part near one the
+    step placed (:data:`TIE_NEAR`): the first that explains the
     step better by :data:`TIE_GAIN` is taken, the earlier step's predictions revised.
     ``done``: the step as predicted; ``placements``: the plan before it. Returns the step's
     (possibly new) predictions, what they placed, its new placements, the shape after it and
@@ -364,7 +385,19 @@ def _try_ties(
         s = run.steps[j - 1]
         for alt in alts:
             trial = _tie_placements(placements, s, alt)
-            shape = None if trial is None else build_placements(trial)
+            if trial is None:
+                continue
+            mine = {(p.pred, p.yaw, p.t) for p in placements if p.step == j}
+            theirs = {(p.pred, p.yaw, p.t) for p in trial if p.step == j}
+            moved = [
+                p
+                for p in placements + trial
+                if p.step == j
+                and ((p.pred, p.yaw, p.t) in mine) != ((p.pred, p.yaw, p.t) in theirs)
+            ]
+            if not any(_near(a, b) for a in moved for b in new):
+                continue
+            shape = build_placements(trial)
             if shape is None:
                 continue
             try:
