@@ -356,8 +356,11 @@ def synthesize(
 
 #: Other solutions of a step explaining its picture within this much of the kept one
 #: (:func:`_explained`) are its ties: the picture cannot tell them apart (a part hidden under
-#: the step's others; a side stud facing away), a later step may (``extra["ties"]``).
-TIE = 1e-3
+#: the step's others; a side stud facing away: the same pixels, the same score), a later step
+#: may (``extra["ties"]``). Near ties are not kept: on other renderers' pictures many
+#: solutions come within 0.001, and predicting later steps again on each cost 0.2-0.4 s a step
+#: for no gain.
+TIE = 1e-9
 #: Ties kept per step, best first.
 MAX_TIES = 3
 
