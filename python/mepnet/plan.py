@@ -306,9 +306,12 @@ def _box(p: Placement) -> tuple[tuple[int, int, int], tuple[int, int, int]]:
     return box
 
 
-def _near(a: Placement, b: Placement) -> bool:
-    """Whether the boxes of ``a`` and ``b`` come within :data:`TIE_NEAR` of each other."""
-    (alo, ahi), (blo, bhi) = _box(a), _box(b)
+def _near(
+    a: tuple[tuple[int, int, int], tuple[int, int, int]],
+    b: tuple[tuple[int, int, int], tuple[int, int, int]],
+) -> bool:
+    """Whether the boxes ``a`` and ``b`` (:func:`_box`) come within :data:`TIE_NEAR`."""
+    (alo, ahi), (blo, bhi) = a, b
     return all(max(alo[i] - bhi[i], blo[i] - ahi[i]) <= TIE_NEAR[i] for i in range(3))
 
 
@@ -380,22 +383,24 @@ def _try_ties(
     if checked.confidence is None or checked.confidence >= TIE_RETRY_BELOW:
         return preds, placed, new, built, checked, placements, []
     k = len(run.steps) + 1
+    placed_boxes = [_box(b) for b in new]  # the step's parts
     for n in range(len(open_ties) - 1, -1, -1):
         j, alts = open_ties[n]
         s = run.steps[j - 1]
+        mine = {(p.pred, p.yaw, p.t) for p in placements if p.step == j}
         for alt in alts:
             trial = _tie_placements(placements, s, alt)
             if trial is None:
                 continue
-            mine = {(p.pred, p.yaw, p.t) for p in placements if p.step == j}
             theirs = {(p.pred, p.yaw, p.t) for p in trial if p.step == j}
+            # the tie's parts that move, at either place
             moved = [
-                p
+                _box(p)
                 for p in placements + trial
                 if p.step == j
                 and ((p.pred, p.yaw, p.t) in mine) != ((p.pred, p.yaw, p.t) in theirs)
             ]
-            if not any(_near(a, b) for a in moved for b in new):
+            if not any(_near(a, b) for a in moved for b in placed_boxes):
                 continue
             shape = build_placements(trial)
             if shape is None:

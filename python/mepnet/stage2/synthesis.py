@@ -340,17 +340,13 @@ def synthesize(
         )
         if wide_score > score + WIDE_MARGIN and not _hidden_on_ground(ctx, wide, preds):
             preds, score, tried = wide, wide_score, wide_tried
-    ties = _ties(ctx, preds, score, tried)
-    if _clock() >= deadline or ties:
-        over = _clock() >= deadline
-        preds = [
-            dataclasses.replace(
-                p, extra={**p.extra, **({"over_budget": True} if over else {}), "ties": ties}
-            )
-            if ties or over
-            else p
-            for p in preds
-        ]
+    said: dict[str, Any] = {}
+    if _clock() >= deadline:
+        said["over_budget"] = True
+    if ties := _ties(ctx, preds, score, tried):
+        said["ties"] = ties
+    if said:
+        preds = [dataclasses.replace(p, extra={**p.extra, **said}) for p in preds]
     return preds
 
 
