@@ -182,3 +182,32 @@ def test_a_tie_a_later_step_tells_apart_is_settled_there(tmp_path: Path):
     assert [(r.step, r.found_at) for r in revised] == [(7, 14)]
     assert revised[0].disagreement[1] < revised[0].disagreement[0]
     assert built_exactly(run)
+
+
+def test_a_tie_is_tried_only_where_it_opens_a_place_the_picture_shows():
+    """A 1x1 plate tied between two corners of a 2x4 brick; the step's 2x2 plate is drawn
+    where one corner's plate would be in the way. The tie opens that place (a retry can find
+    it) only when the plate taken is that corner's; a tie between places the 2x2 plate's
+    picture never meets opens nothing (its retry could only predict the same)."""
+    from mepnet.geom import manual_camera
+    from mepnet.plan import _opens
+
+    brick, plate2, plate1 = (_bg.Component.primitive(n) for n in ("3001", "3022", "3024"))
+
+    def shape(*items):
+        a = _bg.Assembly()
+        for c, t in items:
+            a.add(c, 0, t)
+        return a
+
+    base = (brick, (0, 3, 0))
+    true, blocking, free = (plate2, (-2, 4, 0)), (plate1, (-3, 4, -1)), (plate1, (3, 4, 1))
+    drawn = shape(base, free, true)
+    camera = manual_camera(drawn)
+    changed = _bg.render(drawn, camera, 128, 128, line_px=0.0).ids == 2  # the 2x2 plate
+    assert changed.sum() > 500
+    placed = [Placement(3, 0, plate2, 0, (2, 4, 0), 4)]  # the step put it elsewhere
+    view = (camera, 128, 128)
+    assert _opens(shape(base, blocking), shape(base, free), placed, changed, view)
+    elsewhere = (plate1, (1, 4, 1))  # a tie between two corners the 2x2 plate never meets
+    assert not _opens(shape(base, elsewhere), shape(base, free), placed, changed, view)

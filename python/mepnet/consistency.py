@@ -34,6 +34,9 @@ class StepCheck:
     flags: list[str] = field(default_factory=list)
     #: pixels changed where no placed part is drawn, or drawn where nothing changed
     unexplained: int = 0
+    #: (H, W) bool: where the picture changed (None: not checked); kept for the tie retries of
+    #: :mod:`mepnet.plan`, not written to the plan
+    changed: np.ndarray | None = field(default=None, repr=False, compare=False)
 
 
 def check_step(ctx: StepContext, preds: list[Prediction], shape: _bg.Assembly) -> StepCheck:
@@ -64,7 +67,7 @@ def check_step(ctx: StepContext, preds: list[Prediction], shape: _bg.Assembly) -
             f"the picture is not explained: the placed parts cover {100 * confidence:.0f}% "
             "of what changed"
         )
-    return StepCheck(round(confidence, 4), flags, union - int((new & change).sum()))
+    return StepCheck(round(confidence, 4), flags, union - int((new & change).sum()), change)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -240,6 +240,7 @@ def run_build(
                     open_ties,
                     placements,
                     (preds, placed, new, built, checked),
+                    (camera.camera, w, h),
                     lambda b, page=page_seen, predict=predict, finish=finish: finish(
                         predict(page, base=b)[0], b
                     ),
@@ -250,6 +251,7 @@ def run_build(
             if ties:
                 open_ties.append((k + 1, [[(kept[e], y, t) for e, y, t in alt] for alt in ties]))
                 del open_ties[:-TIE_STEPS]
+        checked.changed = None  # for the tie retries only: a plan keeps no mask per step
         placements += new
         if teacher_forced:
             for inst in full_truth.placed():  # type: ignore[union-attr]
@@ -295,6 +297,11 @@ TIE_STEPS = 4
 #: lattice cells (x, y, z: half-studs, plates) of a part the step placed: what a later step
 #: can tell about a hidden part is where its own parts meet it.
 TIE_NEAR = (2, 3, 2)
+#: ... and only where it opens a place to the step's parts: a placement of one of their
+#: components among the best this many for the step's changed pixels on the shape with the tie
+#: (:func:`mepnet._brickgeom.abys_ranked`) that the shape without it does not allow (a later
+#: part's true place collides with a part the tie moves, or needs a stud it turns away).
+TIE_OPENS = 6
 
 
 def _box(p: Placement) -> tuple[tuple[int, int, int], tuple[int, int, int]]:
@@ -304,6 +311,29 @@ def _box(p: Placement) -> tuple[tuple[int, int, int], tuple[int, int, int]]:
     box = alone.bounds()
     assert box is not None
     return box
+
+
+def _opens(
+    before: _bg.Assembly,
+    shape: _bg.Assembly,
+    new: list[Placement],
+    changed: np.ndarray,
+    view: tuple[_bg.Camera, int, int],
+) -> bool:
+    """Whether the shape ``shape`` (a tie taken) allows one of the components of ``new`` (the
+    step's placements) a place among the :data:`TIE_OPENS` best for the ``changed`` pixels
+    that the shape ``before`` does not."""
+    camera, w, h = view
+    seen: set[str] = set()
+    for p in new:
+        if p.component.name in seen:
+            continue
+        seen.add(p.component.name)
+        ranked, _ = _bg.abys_ranked(shape, camera, w, h, p.component, changed, TIE_OPENS, 1.0)
+        poses = np.array([[yaw, *t] for yaw, t, _ in ranked], np.int64).reshape(-1, 4)
+        if (before.check_many(p.component, poses) < 0).any():
+            return True
+    return False
 
 
 def _near(
@@ -362,6 +392,7 @@ def _try_ties(
     open_ties: list[tuple[int, list[list[tuple[int, int, tuple[int, int, int]]]]]],
     placements: list[Placement],
     done: Finished,
+    view: tuple[_bg.Camera, int, int],
     again: Callable[[_bg.Assembly], Finished],
 ) -> tuple[
     list[Prediction],
@@ -374,8 +405,10 @@ def _try_ties(
 ]:
     """A step explained worse than :data:`TIE_RETRY_BELOW` predicted again (``again``, on a
     shape) on each open tie of an earlier step (latest first) that moves a part near one the
-    step placed (:data:`TIE_NEAR`): the first that explains the
-    step better by :data:`TIE_GAIN` is taken, the earlier step's predictions revised.
+    step placed (:data:`TIE_NEAR`) and opens a place to the step's parts where its picture
+    changed (:func:`_opens`; ``view``: the step's camera and image size): the first that
+    explains the step better by :data:`TIE_GAIN` is taken, the earlier step's predictions
+    revised.
     ``done``: the step as predicted; ``placements``: the plan before it. Returns the step's
     (possibly new) predictions, what they placed, its new placements, the shape after it and
     its check, the plan's placements before it, and the revisions."""
@@ -384,6 +417,7 @@ def _try_ties(
         return preds, placed, new, built, checked, placements, []
     k = len(run.steps) + 1
     placed_boxes = [_box(b) for b in new]  # the step's parts
+    before: _bg.Assembly | None = None  # the shape before the step
     for n in range(len(open_ties) - 1, -1, -1):
         j, alts = open_ties[n]
         s = run.steps[j - 1]
@@ -394,16 +428,23 @@ def _try_ties(
                 continue
             theirs = {(p.pred, p.yaw, p.t) for p in trial if p.step == j}
             # the tie's parts that move, at either place
-            moved = [
-                _box(p)
+            moving = [
+                p
                 for p in placements + trial
                 if p.step == j
                 and ((p.pred, p.yaw, p.t) in mine) != ((p.pred, p.yaw, p.t) in theirs)
             ]
+            moved = [_box(p) for p in moving]
             if not any(_near(a, b) for a in moved for b in placed_boxes):
                 continue
             shape = build_placements(trial)
             if shape is None:
+                continue
+            if before is None:
+                before = build_placements(placements)
+            if checked.changed is not None and not _opens(
+                before, shape, new, checked.changed, view
+            ):
                 continue
             try:
                 result = again(shape)
