@@ -507,3 +507,35 @@ def test_two_parts_each_at_the_others_place_are_swapped_back(
     monkeypatch.setattr(synthesis, "PAIRS", False)
     hits, n = _main_step(fresh / "manual_00930011", 5)
     assert hits <= 3
+
+
+def test_edges_tell_a_turned_part_whatever_the_renderer_draws():
+    """The edge disagreement (:func:`_edge_disagreement`) of a slope on a brick: none for its
+    true turn, whether the picture is drawn with outlines or without and in another tone; its
+    half turn shows edges the picture does not have."""
+    from types import SimpleNamespace
+
+    from mepnet import _brickgeom as _bg
+    from mepnet.geom import manual_camera
+    from mepnet.stage2.synthesis import _edge_disagreement, edge_map
+
+    brick, slope = _bg.Component.primitive("3001"), _bg.Component.primitive("3040b")
+
+    def shape(yaw: int) -> _bg.Assembly:
+        a = _bg.Assembly()
+        a.add(brick, 0, (0, 3, 0), 4)
+        a.add(slope, yaw, (-1, 6, 0), 1)
+        return a
+
+    camera = manual_camera(shape(0))
+    ctx = SimpleNamespace(image_size=(128, 128), camera=camera)
+    changed = _bg.render(shape(0), camera, 128, 128).ids == 1
+    for lines in (1.0, 0.0):  # drawn as mepnet draws, and without outlines
+        picture = (_bg.render(shape(0), camera, 128, 128, line_px=lines).rgb / 255.0) ** 0.6
+        edges = edge_map(picture)
+        assert edges[changed].sum() > 50
+        found = []
+        for yaw in (0, 2):
+            r = _bg.render(shape(yaw), camera, 128, 128)
+            found.append(_edge_disagreement(ctx, shape(yaw), r.rgb, r.ids == 1, changed, edges))
+        assert found[0] == (0, 0) and sum(found[1]) > 100, found

@@ -52,6 +52,19 @@ TYPE_WEIGHT = 0.3
 COLOUR_WEIGHT = 1.0
 #: Weight of the detector's keypoint heatmap at the candidate's projected keypoint.
 KEYPOINT_WEIGHT = 0.3
+#: Weight of the edge disagreement of a complete solution (:func:`_explained`), per pixel of
+#: the IoU's union, near the step's parts and where the picture changed: the picture's edges
+#: that the shape with the step's parts draws nowhere near (with outlines or without) ...
+#: Edges are where any renderer's picture changes colour (a face's outline, a slope's crease,
+#: a stud), whatever its lines and shading: what tells a part's turn where the silhouette and
+#: the colours barely do.
+EDGE_WEIGHT = 1.0
+#: ... and the edges the shape shows without outlines where the picture has none: weaker
+#: evidence, as a renderer may soften a crease (POV-Ray's smooth shading) or shade two faces
+#: alike.
+SHOWN_EDGE_WEIGHT = 0.5
+#: A pixel is an edge where a colour channel's Sobel gradient (colours in [0, 1]) reaches this.
+EDGE_THRESHOLD = 0.25
 #: Placements per type (best mask IoU first) weighed by colour and type belief.
 RANKED = 6
 #: Line tolerance (:func:`tolerate_lines`): the band either side of the base's part edges, in
@@ -489,6 +502,7 @@ def _solve(
         mask |= t.mask
     memo: dict[frozenset[First], tuple[Any, list[tuple[float, First]]]] = {}
     drawn: dict[First, _Drawn] = {}
+    picture_edges = edge_map(picture) if picture is not None and EDGE_WEIGHT else None
 
     total = sum(t.count for t in types)
 
@@ -505,7 +519,7 @@ def _solve(
         )
         if len(p) < total:
             return p, t, o, float("-inf")
-        score = _explained(ctx, p, mask, picture, tone)
+        score = _explained(ctx, p, mask, picture, tone, picture_edges)
         tried.append((score, p))
         return p, t, o, score
 
@@ -651,15 +665,71 @@ def _columns(
     return out
 
 
+def edge_map(rgb: np.ndarray) -> np.ndarray:
+    """(H, W) bool: where ``rgb`` ((H, W, 3) floats in [0, 1]) changes colour: a channel's
+    Sobel gradient magnitude reaches :data:`EDGE_THRESHOLD`."""
+    p = np.pad(rgb, ((1, 1), (1, 1), (0, 0)), mode="edge")
+    gx = (p[:-2, 2:] + 2 * p[1:-1, 2:] + p[2:, 2:]) - (p[:-2, :-2] + 2 * p[1:-1, :-2] + p[2:, :-2])
+    gy = (p[2:, :-2] + 2 * p[2:, 1:-1] + p[2:, 2:]) - (p[:-2, :-2] + 2 * p[:-2, 1:-1] + p[:-2, 2:])
+    return (gx * gx + gy * gy).max(axis=2) >= EDGE_THRESHOLD**2
+
+
+def _dilate(a: np.ndarray, r: int) -> np.ndarray:
+    """(H, W) bool ``a`` widened by ``r`` pixels (a square; edges padded)."""
+    h, w = a.shape
+    p = np.pad(a, r)
+    rows = np.zeros((h + 2 * r, w), bool)
+    for dx in range(2 * r + 1):
+        rows |= p[:, dx : dx + w]
+    out = np.zeros((h, w), bool)
+    for dy in range(2 * r + 1):
+        out |= rows[dy : dy + h]
+    return out
+
+
+def _edge_disagreement(
+    ctx: StepContext,
+    shape: _bg.Assembly,
+    lined: np.ndarray,
+    new: np.ndarray,
+    mask: np.ndarray,
+    picture_edges: np.ndarray,
+) -> tuple[int, int]:
+    """The edges ``shape`` (the base and the step's parts, drawn ``new``) shows without
+    outlines where the picture (its :func:`edge_map` ``picture_edges``) has none within a
+    pixel, and the picture's edges it draws neither so nor with outlines (``lined``: its
+    (H, W, 3) uint8 render) within a pixel, counted within 2 pixels of the parts and where the
+    picture changed (``mask``): a renderer shows every face's outline as a change of colour,
+    and may or may not draw lines. Returns the two counts (shown, not drawn)."""
+    w, h = ctx.image_size
+    near = new | mask
+    rows, cols = np.nonzero(near.any(axis=1))[0], np.nonzero(near.any(axis=0))[0]
+    box = (
+        slice(max(int(rows[0]) - 4, 0), min(int(rows[-1]) + 5, h)),
+        slice(max(int(cols[0]) - 4, 0), min(int(cols[-1]) + 5, w)),
+    )
+    rgb = _bg.render(shape, ctx.camera, w, h, line_px=0.0).rgb[box] / 255.0
+    near = _dilate(new[box], 2) | mask[box]
+    drawn = edge_map(rgb) & near
+    seen = picture_edges[box] & near
+    unseen = drawn & ~_dilate(seen, 1)  # shown, the picture shows none
+    undrawn = seen & ~_dilate(drawn | edge_map(lined[box] / 255.0), 1)  # in neither drawing
+    return int(unseen.sum()), int(undrawn.sum())
+
+
 def _explained(
     ctx: StepContext,
     preds: list[Prediction],
     mask: np.ndarray,
     picture: np.ndarray | None,
     tone: np.ndarray,
+    picture_edges: np.ndarray | None = None,
 ) -> float:
     """How well a step's predicted parts together explain its picture: the IoU of their
-    visible pixels with the changed pixels ``mask``, less the colour residual over them."""
+    visible pixels with the changed pixels ``mask``, less the colour residual over them, less
+    the edge disagreement (:func:`_edge_disagreement`, :data:`EDGE_WEIGHT`,
+    :data:`SHOWN_EDGE_WEIGHT`; ``picture_edges``: the picture's :func:`edge_map`, None: not
+    weighed)."""
     w, h = ctx.image_size
     asm = ctx.base.copy()
     n0 = len(asm)
@@ -673,6 +743,9 @@ def _explained(
     if picture is not None and new.any():
         rendered = r.rgb[new] / 255.0 * tone[0] + tone[1]
         score -= COLOUR_WEIGHT * float(np.abs(picture[new] - rendered).max(axis=1).mean())
+    if picture_edges is not None and union and EDGE_WEIGHT:
+        unseen, undrawn = _edge_disagreement(ctx, asm, r.rgb, new, mask, picture_edges)
+        score -= (EDGE_WEIGHT * undrawn + SHOWN_EDGE_WEIGHT * unseen) / union
     return score - 0.5 * sum(1 for p in preds if not p.placed) / max(len(preds), 1)
 
 
