@@ -103,13 +103,16 @@ def step_picture(ctx: StepContext) -> np.ndarray:
 
 
 def _max_filter(a: np.ndarray, r: int) -> np.ndarray:
-    """The maximum over each pixel's (2r+1)^2 neighbourhood (edges padded)."""
+    """The maximum over each pixel's (2r+1)^2 neighbourhood (edges padded; a bool ``a``: ``a``
+    widened by ``r`` pixels); along the rows, then the columns."""
     h, w = a.shape
     p = np.pad(a, r, mode="edge")
-    out = a.copy()
+    rows = p[:, r : r + w].copy()
+    for dx in range(2 * r + 1):
+        np.maximum(rows, p[:, dx : dx + w], out=rows)
+    out = rows[r : r + h].copy()
     for dy in range(2 * r + 1):
-        for dx in range(2 * r + 1):
-            np.maximum(out, p[dy : dy + h, dx : dx + w], out=out)
+        np.maximum(out, rows[dy : dy + h], out=out)
     return out
 
 
@@ -674,19 +677,6 @@ def edge_map(rgb: np.ndarray) -> np.ndarray:
     return (gx * gx + gy * gy).max(axis=2) >= EDGE_THRESHOLD**2
 
 
-def _dilate(a: np.ndarray, r: int) -> np.ndarray:
-    """(H, W) bool ``a`` widened by ``r`` pixels (a square; edges padded)."""
-    h, w = a.shape
-    p = np.pad(a, r)
-    rows = np.zeros((h + 2 * r, w), bool)
-    for dx in range(2 * r + 1):
-        rows |= p[:, dx : dx + w]
-    out = np.zeros((h, w), bool)
-    for dy in range(2 * r + 1):
-        out |= rows[dy : dy + h]
-    return out
-
-
 def _edge_disagreement(
     ctx: StepContext,
     shape: _bg.Assembly,
@@ -709,11 +699,11 @@ def _edge_disagreement(
         slice(max(int(cols[0]) - 4, 0), min(int(cols[-1]) + 5, w)),
     )
     rgb = _bg.render(shape, ctx.camera, w, h, line_px=0.0).rgb[box] / 255.0
-    near = _dilate(new[box], 2) | mask[box]
+    near = _max_filter(new[box], 2) | mask[box]
     drawn = edge_map(rgb) & near
     seen = picture_edges[box] & near
-    unseen = drawn & ~_dilate(seen, 1)  # shown, the picture shows none
-    undrawn = seen & ~_dilate(drawn | edge_map(lined[box] / 255.0), 1)  # in neither drawing
+    unseen = drawn & ~_max_filter(seen, 1)  # shown, the picture shows none
+    undrawn = seen & ~_max_filter(drawn | edge_map(lined[box] / 255.0), 1)  # in neither drawing
     return int(unseen.sum()), int(undrawn.sum())
 
 
