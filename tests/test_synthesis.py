@@ -235,16 +235,23 @@ def test_a_part_standing_apart_must_show_itself(tmp_path: Path):
     """The wide ground search's solution is not taken when a part it stands on the ground is
     mostly hidden behind the base shape (it only mimics a change mask that missed part of the
     true placement); the part standing apart in full view is, and so is a part the narrow
-    solution placed the same way."""
+    solution placed the same way, and a part hidden just behind the base (beside it, not
+    apart: the generator stands parts there and draws them hidden)."""
     from mepnet import _brickgeom as _bg
     from mepnet.manual import answers_of
     from mepnet.stage2 import Prediction, StepContext
-    from mepnet.stage2.synthesis import WIDE_VISIBLE, _hidden_on_ground
+    from mepnet.stage2.synthesis import WIDE_BESIDE, WIDE_VISIBLE, _hidden_on_ground
 
     m = load_manual(manual_from_ldraw(APART, tmp_path))
     answers = answers_of(m)
     comps = answers.components(m)
-    ctx = StepContext(m.main.steps[1], answers.main.assembly_before(1, comps), comps, m.image_size)
+    base = answers.main.assembly_before(1, comps)
+    (brick,) = answers.main.truth(0).placed()
+    for up in (1, 2, 3):  # the brick four high: a wall a part stands hidden behind
+        base.add_checked(
+            comps[brick.component], brick.yaw, (brick.t[0], brick.t[1] + 3 * up, brick.t[2])
+        )
+    ctx = StepContext(m.main.steps[1], base, comps, m.image_size)
     (truth,) = answers.main.truth(1).placed()
     comp, w, h = comps[truth.component], *m.image_size
 
@@ -259,7 +266,6 @@ def test_a_part_standing_apart_must_show_itself(tmp_path: Path):
         seen = (_bg.render(asm, ctx.camera, w, h).ids == len(ctx.base)).sum()
         return seen / max((_bg.render(alone, ctx.camera, w, h).ids == 0).sum(), 1)
 
-    assert shown(truth.t) > 0.99 and not _hidden_on_ground(ctx, [pred(truth.t)])
     ground = [(x, truth.t[1], z) for x in range(-16, 17) for z in range(-16, 17)]
 
     def on_ground(t: tuple[int, int, int]) -> bool:
@@ -269,13 +275,30 @@ def test_a_part_standing_apart_must_show_itself(tmp_path: Path):
             return False
 
     ground = [t for t in ground if on_ground(t)]
-    behind = min((t for t in ground if shown(t) > 0.2), key=shown)  # its top over the brick
+    box = ctx.base.bounds()
+    assert box is not None
+
+    def gap(t: tuple[int, int, int]) -> int:
+        """How many lattice cells its footprint stands outside the base's footprint box."""
+        alone = _bg.Assembly()
+        alone.add(comp, truth.yaw, t, 1)
+        (lo, hi), (plo, phi) = box, alone.bounds()
+        return max(max(lo[a] - phi[a], plo[a] - hi[a]) for a in (0, 2))
+
+    apart = [t for t in ground if gap(t) > WIDE_BESIDE]
+    front = max(apart, key=shown)
+    assert shown(front) > 0.99 and not _hidden_on_ground(ctx, [pred(front)])
+    behind = min((t for t in apart if shown(t) > 0.2), key=shown)  # its top over the wall
     assert shown(behind) < WIDE_VISIBLE
-    assert _hidden_on_ground(ctx, [pred(truth.t), pred(behind)])
+    # just behind the base (half a stud to a stud off its footprint box) it is as hidden, and
+    # stands beside the base, not apart: a part put there is drawn hidden
+    near = [t for t in ground if 0 < gap(t) <= WIDE_BESIDE and shown(t) < WIDE_VISIBLE]
+    assert near and not any(_hidden_on_ground(ctx, [pred(t)]) for t in near)
+    assert _hidden_on_ground(ctx, [pred(front), pred(behind)])
     assert _hidden_on_ground(ctx, [pred(behind)])
     assert not _hidden_on_ground(ctx, [pred(behind)], [pred(behind)])  # the narrow solve's own
     assert not _hidden_on_ground(
-        ctx, [pred(truth.t), Prediction(0, truth.component, None, None, failure="x")]
+        ctx, [pred(front), Prediction(0, truth.component, None, None, failure="x")]
     )
 
 

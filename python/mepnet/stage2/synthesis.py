@@ -454,13 +454,18 @@ WIDE_MARGIN = 0.1
 #: colour of the part under it). (Parts standing beside or under the base are often partly
 #: hidden by it, and the step's own new parts may hide any: the bottom of a stack.)
 WIDE_VISIBLE = 0.8
+#: ... a part whose footprint comes within this many lattice cells (half studs) of the base's
+#: footprint box stands beside it, not apart: a brick half a stud behind the model is as
+#: hidden by it as one touching it (the misread this guards against stood 15 studs behind).
+WIDE_BESIDE = 2
 
 
 def _hidden_on_ground(
     ctx: StepContext, preds: list[Prediction], before: Sequence[Prediction] = ()
 ) -> bool:
-    """Whether a part of ``preds`` standing on the ground outside the base's footprint, and not
-    placed so in ``before``, shows less than :data:`WIDE_VISIBLE` of itself drawn with the base."""
+    """Whether a part of ``preds`` standing on the ground apart from the base (more than
+    :data:`WIDE_BESIDE` cells outside its footprint box), and not placed so in ``before``, shows
+    less than :data:`WIDE_VISIBLE` of itself drawn with the base."""
     w, h = ctx.image_size
     n0 = len(ctx.base)
     box = ctx.base.bounds()
@@ -475,8 +480,8 @@ def _hidden_on_ground(
         if box is None or own is None:
             continue
         (lo, hi), (plo, phi) = box, own
-        if all(plo[a] <= hi[a] and phi[a] >= lo[a] for a in (0, 2)):
-            continue  # within the base's footprint box
+        if all(plo[a] <= hi[a] + WIDE_BESIDE and phi[a] >= lo[a] - WIDE_BESIDE for a in (0, 2)):
+            continue  # within or beside the base's footprint box
         full = int((_bg.render(alone, ctx.camera, w, h).ids >= 0).sum())
         asm = ctx.base.copy()
         asm.add(comp, p.yaw, p.t, 0)  # type: ignore[arg-type]
