@@ -240,7 +240,7 @@ def test_a_part_standing_apart_must_show_itself(tmp_path: Path):
     from mepnet import _brickgeom as _bg
     from mepnet.manual import answers_of
     from mepnet.stage2 import Prediction, StepContext
-    from mepnet.stage2.synthesis import WIDE_BESIDE, WIDE_VISIBLE, _hidden_on_ground
+    from mepnet.stage2.synthesis import WIDE_BESIDE, WIDE_VISIBLE, _ground_gap, _hidden_on_ground
 
     m = load_manual(manual_from_ldraw(APART, tmp_path))
     answers = answers_of(m)
@@ -275,22 +275,17 @@ def test_a_part_standing_apart_must_show_itself(tmp_path: Path):
             return False
 
     ground = [t for t in ground if on_ground(t)]
-    box = ctx.base.bounds()
-    assert box is not None
 
     def gap(t: tuple[int, int, int]) -> int:
-        """How many lattice cells its footprint stands outside the base's footprint box."""
-        alone = _bg.Assembly()
-        alone.add(comp, truth.yaw, t, 1)
-        (lo, hi), (plo, phi) = box, alone.bounds()
-        return max(max(lo[a] - phi[a], plo[a] - hi[a]) for a in (0, 2))
+        """How many empty lattice cells lie between it and the base's footprint box."""
+        return _ground_gap(ctx, pred(t)) or 0
 
     apart = [t for t in ground if gap(t) > WIDE_BESIDE]
     front = max(apart, key=shown)
     assert shown(front) > 0.99 and not _hidden_on_ground(ctx, [pred(front)])
     behind = min((t for t in apart if shown(t) > 0.2), key=shown)  # its top over the wall
     assert shown(behind) < WIDE_VISIBLE
-    # just behind the base (half a stud to a stud off its footprint box) it is as hidden, and
+    # just behind the base (half a stud to a stud from its footprint box) it is as hidden, and
     # stands beside the base, not apart: a part put there is drawn hidden
     near = [t for t in ground if 0 < gap(t) <= WIDE_BESIDE and shown(t) < WIDE_VISIBLE]
     assert near and not any(_hidden_on_ground(ctx, [pred(t)]) for t in near)
@@ -300,6 +295,37 @@ def test_a_part_standing_apart_must_show_itself(tmp_path: Path):
     assert not _hidden_on_ground(
         ctx, [pred(front), Prediction(0, truth.component, None, None, failure="x")]
     )
+
+
+#: A 2x4 brick, then a 1x2 brick on the ground a stud in front of it.
+NEAR = """0 a brick a stud away
+1 4 0 -24 0 1 0 0 0 1 0 0 0 1 3001.dat
+0 STEP
+1 2 0 -24 -50 1 0 0 0 1 0 0 0 1 3004.dat
+0 STEP
+"""
+
+
+def test_a_part_a_stud_from_the_base_is_found(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
+    """A part on the ground a stud from the base is outside the ground searched right beside
+    the base: a step the narrow search stands a part on the ground for is solved again with
+    the ground searched where the picture changed, however well it explains the picture, and
+    that solution needs no margin when its part stands beside the base, not apart."""
+    import mepnet.stage2.synthesis as synthesis
+    from mepnet.manual import answers_of
+    from mepnet.stage2 import StepContext
+
+    m = load_manual(manual_from_ldraw(NEAR, tmp_path))
+    monkeypatch.setattr(synthesis, "WIDE_BELOW", float("-inf"))  # only the ground part asks
+    monkeypatch.setattr(synthesis, "WIDE_MARGIN", 1.0)  # no part apart: no margin asked
+    run = run_manual(m, make_predictor("synthesis"), teacher_forced=True)
+    assert step_matches(run, run.main.steps[-1]) == 1
+    (pred,) = run.main.steps[-1].predictions
+    assert pred.attach == "ground"
+    answers = answers_of(m)
+    comps = answers.components(m)
+    ctx = StepContext(m.main.steps[1], answers.main.assembly_before(1, comps), comps, m.image_size)
+    assert synthesis._ground_gap(ctx, pred) == 2  # a stud: two lattice cells
 
 
 #: A first step: a slope and a tile standing apart on the ground.

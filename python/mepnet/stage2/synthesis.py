@@ -323,12 +323,14 @@ def synthesize(
     three or more instances takes each pair of its decisions again last, in the context of
     all the others (:data:`PAIRS`: two parts each at the other's place).
 
-    Parts stand on the ground beside the base shape (on a build's first step: anywhere the
-    picture changed); when the solution explains the picture
-    worse than :data:`WIDE_BELOW`, the step is solved again with the ground searched wherever
-    the picture shows a change (a part standing on its own, away from the base: see
-    ``abys_ranked``'s ``wide_ground``), and that solution is kept when it explains the picture
-    better by :data:`WIDE_MARGIN`.
+    Parts stand on the ground right beside the base shape (on a build's first step: anywhere
+    the picture changed); when the solution explains the picture worse than
+    :data:`WIDE_BELOW`, or stands a part on the ground, the step is solved again with the
+    ground searched wherever the picture shows a change (a part standing on its own, away from
+    the base: see ``abys_ranked``'s ``wide_ground``), and that solution is kept when it
+    explains the picture better: by :data:`WIDE_MARGIN` when a part of it stands apart from
+    the base (:func:`_apart`), and then only if each such part shows itself
+    (:func:`_hidden_on_ground`).
 
     The step's budget (CPU seconds): once it is spent, no decision is revisited and the ground
     is not searched again; the greedy under way is finished, each of its remaining placement searches
@@ -350,11 +352,13 @@ def synthesize(
     # a build's first step: every part stands on the ground, wherever the picture shows it
     first = len(ctx.base) == 0
     preds, score, tried = _solve(ctx, types, time_limit_s, picture, tone, first, deadline)
-    if score < WIDE_BELOW and not first and _clock() < deadline:
+    on_ground = any(p.placed and p.attach == "ground" for p in preds)
+    if (score < WIDE_BELOW or on_ground) and not first and _clock() < deadline:
         wide, wide_score, wide_tried = _solve(
             ctx, types, time_limit_s, picture, tone, True, deadline
         )
-        if wide_score > score + WIDE_MARGIN and not _hidden_on_ground(ctx, wide, preds):
+        margin = WIDE_MARGIN if _apart(ctx, wide, preds) else 0.0
+        if wide_score > score + margin + 1e-6 and not _hidden_on_ground(ctx, wide, preds):
             preds, score, tried = wide, wide_score, wide_tried
     said: dict[str, Any] = {}
     if _clock() >= deadline:
@@ -441,11 +445,13 @@ def _clock() -> float:
 MIN_SEARCH_S = 0.25
 
 
-#: A step explained worse than this (:func:`_explained`) is solved again with the ground
-#: searched wherever the picture changed, not only beside the base shape.
+#: A step explained worse than this (:func:`_explained`), or one whose solution stands a part
+#: on the ground, is solved again with the ground searched wherever the picture changed, not
+#: only right beside the base shape (a part a stud away from it is outside that search).
 WIDE_BELOW = 0.8
-#: ... and that solution is taken when it explains the picture better by this much (seen along
-#: the camera's rays, a part far behind the shape can mimic one fixed onto it).
+#: ... and that solution is taken when it explains the picture better, by this much when it
+#: stands a part apart from the base (:func:`_apart`: seen along the camera's rays, a part far
+#: behind the shape can mimic one fixed onto it).
 WIDE_MARGIN = 0.1
 #: ... and when each of its parts standing on the ground apart from the base shape (outside its
 #: footprint's box) shows at least this share of itself in front of the base: an instruction
@@ -460,28 +466,47 @@ WIDE_VISIBLE = 0.8
 WIDE_BESIDE = 2
 
 
+def _ground_gap(ctx: StepContext, p: Prediction) -> int | None:
+    """How many empty lattice cells (half studs) lie between a part of ``p`` standing on the
+    ground and the base's footprint box (0: within it or touching it); None: not on the
+    ground, or no base."""
+    box = ctx.base.bounds()
+    if not (p.placed and p.attach == "ground") or box is None:
+        return None
+    alone = _bg.Assembly()
+    alone.add(ctx.components[p.component], p.yaw, p.t, 0)  # type: ignore[arg-type]
+    own = alone.bounds()
+    if own is None:
+        return None
+    (lo, hi), (plo, phi) = box, own
+    return max(0, *(max(lo[a] - phi[a], plo[a] - hi[a]) - 1 for a in (0, 2)))
+
+
+def _apart(
+    ctx: StepContext, preds: list[Prediction], before: Sequence[Prediction] = ()
+) -> list[Prediction]:
+    """The parts of ``preds`` standing on the ground apart from the base (more than
+    :data:`WIDE_BESIDE` cells outside its footprint box) and not placed so in ``before``."""
+    known = {(q.component, q.yaw, q.t) for q in before if q.placed}
+    return [
+        p
+        for p in preds
+        if (p.component, p.yaw, p.t) not in known and (_ground_gap(ctx, p) or 0) > WIDE_BESIDE
+    ]
+
+
 def _hidden_on_ground(
     ctx: StepContext, preds: list[Prediction], before: Sequence[Prediction] = ()
 ) -> bool:
-    """Whether a part of ``preds`` standing on the ground apart from the base (more than
-    :data:`WIDE_BESIDE` cells outside its footprint box), and not placed so in ``before``, shows
-    less than :data:`WIDE_VISIBLE` of itself drawn with the base."""
+    """Whether a part of ``preds`` standing on the ground apart from the base (:func:`_apart`:
+    more than :data:`WIDE_BESIDE` cells outside its footprint box), and not placed so in
+    ``before``, shows less than :data:`WIDE_VISIBLE` of itself drawn with the base."""
     w, h = ctx.image_size
     n0 = len(ctx.base)
-    box = ctx.base.bounds()
-    known = {(q.component, q.yaw, q.t) for q in before if q.placed}
-    for p in preds:
-        if not (p.placed and p.attach == "ground") or (p.component, p.yaw, p.t) in known:
-            continue
+    for p in _apart(ctx, preds, before):
         comp = ctx.components[p.component]
         alone = _bg.Assembly()
         alone.add(comp, p.yaw, p.t, 0)  # type: ignore[arg-type]
-        own = alone.bounds()
-        if box is None or own is None:
-            continue
-        (lo, hi), (plo, phi) = box, own
-        if all(plo[a] <= hi[a] + WIDE_BESIDE and phi[a] >= lo[a] - WIDE_BESIDE for a in (0, 2)):
-            continue  # within or beside the base's footprint box
         full = int((_bg.render(alone, ctx.camera, w, h).ids >= 0).sum())
         asm = ctx.base.copy()
         asm.add(comp, p.yaw, p.t, 0)  # type: ignore[arg-type]
