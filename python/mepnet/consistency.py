@@ -19,7 +19,14 @@ from mepnet import _brickgeom as _bg
 from mepnet.errors import MepnetError
 from mepnet.geom import BrickGeomError
 from mepnet.stage2.base import Prediction, StepContext
-from mepnet.stage2.synthesis import PAGE_LIKE, _max_filter, silhouette, step_change, step_picture
+from mepnet.stage2.synthesis import (
+    PAGE_LIKE,
+    _max_filter,
+    edge_map,
+    silhouette,
+    step_change,
+    step_picture,
+)
 from mepnet.state import CHANGE_THRESHOLD
 
 #: A step whose confidence is below this is flagged: its picture is not explained.
@@ -328,6 +335,48 @@ def repair(
     return placements, revisions
 
 
+# ---------------------------------------------------------------------------------------------
+# Ties: an earlier step's solutions its picture could not tell apart, seen from a new side
+
+
+#: Two drawings of the model differ where a channel differs by more than this (0-255).
+DRAWN_LEVEL = 24
+#: A picture tells two shapes apart only where their drawings differ in at least this many
+#: pixels.
+TIE_SEEN_PX = 12
+
+
+def tie_distances(
+    picture: np.ndarray, a: _bg.Assembly, b: _bg.Assembly, camera: _bg.Camera
+) -> tuple[float, float, int] | None:
+    """How far the picture ``picture`` ((H, W, 3) uint8) is from the shapes ``a`` and ``b``
+    drawn with ``camera``, where the two drawings differ (widened by a pixel): per pixel there,
+    the colour residual (the largest channel's, 0-1) plus the edges (:func:`edge_map`) one has
+    and the other has not within a pixel (a renderer shows every face's outline as a change of
+    colour, whatever its shading). Returns the two distances and the pixels compared; None
+    where the drawings differ in fewer than :data:`TIE_SEEN_PX` pixels."""
+    h, w = picture.shape[:2]
+    ra = _bg.render(a, camera, w, h).rgb
+    rb = _bg.render(b, camera, w, h).rgb
+    differ = np.abs(ra.astype(np.int16) - rb).max(axis=-1) > DRAWN_LEVEL
+    if int(differ.sum()) < TIE_SEEN_PX:
+        return None
+    region = _max_filter(differ, 1)
+    n = int(region.sum())
+    pic = picture.astype(np.float32) / 255.0
+    edges = edge_map(pic)
+    near_edges = _max_filter(edges, 1)
+    out = []
+    for r in (ra, rb):
+        rgb = r.astype(np.float32) / 255.0
+        colour = float(np.abs(pic[region] - rgb[region]).max(axis=-1).mean())
+        drawn = edge_map(rgb)
+        unseen = drawn & ~near_edges & region  # drawn, the picture shows none
+        undrawn = edges & ~_max_filter(drawn, 1) & region  # the picture's, not drawn
+        out.append(colour + float(unseen.sum() + undrawn.sum()) / n)
+    return out[0], out[1], n
+
+
 __all__ = [
     "UNEXPLAINED",
     "Placement",
@@ -340,4 +389,5 @@ __all__ = [
     "repair",
     "silhouette",
     "suspects",
+    "tie_distances",
 ]

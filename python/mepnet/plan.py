@@ -25,7 +25,7 @@ import numpy as np
 
 from mepnet import _brickgeom as _bg
 from mepnet.cameras import SMALL_BASE, BuildCameras, CameraEstimate, PageStyle
-from mepnet.consistency import Placement, Revision, StepCheck, View, check_step
+from mepnet.consistency import Placement, Revision, StepCheck, View, check_step, tie_distances
 from mepnet.consistency import build as build_placements
 from mepnet.consistency import repair as repair_placements
 from mepnet.errors import MepnetError
@@ -148,6 +148,7 @@ def run_build(
     views: list[View] = []  # the pictures so far as the repair sees them
     # the latest steps whose pictures could not tell solutions apart: (step, the others)
     open_ties: list[tuple[int, list[list[tuple[int, int, tuple[int, int, int]]]]]] = []
+    tie_views: dict[int, list[tuple[float, float, float]]] = {}  # the views each was judged by
     w, h = manual.image_size
     for k, step in enumerate(build.steps):
         truth = full_truth = answers.truth(k) if answers is not None else None
@@ -250,7 +251,9 @@ def run_build(
             ties = next((p.extra["ties"] for p in preds if p.extra.get("ties")), None)
             if ties:
                 open_ties.append((k + 1, [[(kept[e], y, t) for e, y, t in alt] for alt in ties]))
-                del open_ties[:-TIE_STEPS]
+                del open_ties[:-TIE_KEPT]
+                if camera.camera is not None:
+                    tie_views[k + 1] = [_view(camera.camera)]
         checked.changed = None  # for the tie retries only: a plan keeps no mask per step
         placements += new
         if teacher_forced:
@@ -263,8 +266,14 @@ def run_build(
         )
         if camera.camera is not None and repair and not teacher_forced:
             t0 = time.perf_counter()
-            views.append(View.of(k + 1, camera.camera, step.image()))
+            picture = step.image()
+            views.append(View.of(k + 1, camera.camera, picture))
             placements, revisions = repair_placements(placements, views, w, h)
+            if open_ties:
+                placements, seen_revisions = _ties_seen(
+                    run, open_ties, tie_views, placements, camera.camera, picture
+                )
+                revisions += seen_revisions
             for r in revisions:  # the earlier step's prediction takes its new pose
                 old = run.steps[r.step - 1]
                 p, pl = old.predictions[r.pred], old.placed[r.pred]
@@ -291,8 +300,17 @@ def run_build(
 TIE_RETRY_BELOW = 0.9
 #: ... and such a solution is taken when the step then explains its picture this much better.
 TIE_GAIN = 0.01
-#: The latest steps with ties kept open (each retry predicts the step again).
+#: The latest steps with ties the retries look at (each retry predicts the step again).
 TIE_STEPS = 4
+#: The latest steps with ties kept open for later pictures to judge (:func:`_ties_seen`).
+TIE_KEPT = 16
+#: A tie is judged again by a picture whose view turned at least this many degrees (elevation,
+#: azimuth or roll) from every picture it was judged by: from the same side, the parts added
+#: since only hide more of what the tie's own picture could not tell apart.
+TIE_TURN = 10.0
+#: ... and taken when that picture is closer to it (:func:`mepnet.consistency.tie_distances`)
+#: by this much.
+TIE_SEEN_GAIN = 0.05
 #: ... and a tie is tried only where a part it moves (at either place) comes within this many
 #: lattice cells (x, y, z: half-studs, plates) of a part the step placed: what a later step
 #: can tell about a hidden part is where its own parts meet it.
@@ -418,7 +436,7 @@ def _try_ties(
     k = len(run.steps) + 1
     placed_boxes = [_box(b) for b in new]  # the step's parts
     before: _bg.Assembly | None = None  # the shape before the step
-    for n in range(len(open_ties) - 1, -1, -1):
+    for n in range(len(open_ties) - 1, max(len(open_ties) - TIE_STEPS, 0) - 1, -1):
         j, alts = open_ties[n]
         s = run.steps[j - 1]
         mine = {(p.pred, p.yaw, p.t) for p in placements if p.step == j}
@@ -453,31 +471,93 @@ def _try_ties(
             check = result[4]
             if check.confidence is None or check.confidence < checked.confidence + TIE_GAIN:
                 continue
-            revisions = []
-            for p in trial:  # type: ignore[union-attr]
-                if p.step != j:
-                    continue
-                old = s.placed[p.pred]
-                if old is None or (old[1], old[2]) == (p.yaw, p.t):
-                    continue
-                revisions.append(
-                    Revision(
-                        j,
-                        p.pred,
-                        (old[1], old[2]),
-                        (p.yaw, p.t),
-                        k,
-                        (checked.unexplained, check.unexplained),
-                    )
-                )
-                q = s.predictions[p.pred]
-                s.predictions[p.pred] = dataclasses.replace(
-                    q, yaw=p.yaw, t=p.t, extra={**q.extra, "revised_at": k}
-                )
-                s.placed[p.pred] = (old[0], p.yaw, p.t, old[3])
+            revisions = _revise(s, trial, k, (checked.unexplained, check.unexplained))
             del open_ties[n]
             return (*result, trial, revisions)  # type: ignore[return-value]
     return preds, placed, new, built, checked, placements, []
+
+
+def _revise(
+    s: StepRun, trial: list[Placement], k: int, disagreement: tuple[int, int]
+) -> list[Revision]:
+    """Step ``s``'s predictions take the poses its placements have in ``trial`` (a tie taken,
+    found at step ``k``); returns the revisions made."""
+    revisions = []
+    for p in trial:
+        if p.step != s.index:
+            continue
+        old = s.placed[p.pred]
+        if old is None or (old[1], old[2]) == (p.yaw, p.t):
+            continue
+        revisions.append(Revision(s.index, p.pred, (old[1], old[2]), (p.yaw, p.t), k, disagreement))
+        q = s.predictions[p.pred]
+        s.predictions[p.pred] = dataclasses.replace(
+            q, yaw=p.yaw, t=p.t, extra={**q.extra, "revised_at": k}
+        )
+        s.placed[p.pred] = (old[0], p.yaw, p.t, old[3])
+    return revisions
+
+
+def _view(camera: _bg.Camera) -> tuple[float, float, float]:
+    """The direction a camera looks from: elevation, azimuth, roll (degrees)."""
+    return (camera.elevation, camera.azimuth, camera.roll)
+
+
+def _turn(a: tuple[float, float, float], b: tuple[float, float, float]) -> float:
+    """The largest difference (degrees) between two views' elevations, azimuths and rolls."""
+    return max(abs((x - y + 180.0) % 360.0 - 180.0) for x, y in zip(a, b, strict=True))
+
+
+def _ties_seen(
+    run: BuildRun,
+    open_ties: list[tuple[int, list[list[tuple[int, int, tuple[int, int, int]]]]]],
+    judged: dict[int, list[tuple[float, float, float]]],
+    placements: list[Placement],
+    camera: _bg.Camera,
+    picture: np.ndarray,
+) -> tuple[list[Placement], list[Revision]]:
+    """Each open tie (latest first) judged by the latest step's picture (``camera``,
+    ``picture``) when it looks from a side none of the tie's pictures so far did (``judged``:
+    the views each tie's step has been judged from, this one added; :data:`TIE_TURN`): where
+    the plan drawn with a tie taken differs from the plan as it is (:func:`tie_distances`),
+    the tie is taken when the picture is closer to it by :data:`TIE_SEEN_GAIN` (the earlier
+    step's predictions revised; the step's ties closed), dropped when farther by as much;
+    a tie the plan no longer allows is dropped. Returns the plan's placements and the
+    revisions."""
+    view = _view(camera)
+    k = len(run.steps)
+    shape: _bg.Assembly | None = None
+    revisions: list[Revision] = []
+    for n in range(len(open_ties) - 1, -1, -1):
+        j, alts = open_ties[n]
+        seen = judged.setdefault(j, [])
+        if any(_turn(view, v) < TIE_TURN for v in seen):
+            continue
+        seen.append(view)
+        s = run.steps[j - 1]
+        shape = build_placements(placements) if shape is None else shape
+        if shape is None:
+            break
+        left = []
+        for alt in alts:
+            trial = _tie_placements(placements, s, alt)
+            other = None if trial is None else build_placements(trial)
+            if trial is None or other is None:
+                continue  # the plan since does not allow it
+            far = tie_distances(picture, shape, other, camera)
+            if far is None:
+                left.append(alt)
+            elif far[1] < far[0] - TIE_SEEN_GAIN:
+                revisions += _revise(s, trial, k, (round(far[0] * far[2]), round(far[1] * far[2])))
+                placements, shape, left = trial, other, []
+                break
+            elif far[1] <= far[0] + TIE_SEEN_GAIN:
+                left.append(alt)
+        if left:
+            open_ties[n] = (j, left)
+        else:
+            del open_ties[n]
+    return placements, revisions
 
 
 #: A camera check this good ends the search over a step's camera hypotheses.

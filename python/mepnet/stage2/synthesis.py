@@ -328,9 +328,9 @@ def synthesize(
     :data:`WIDE_BELOW`, or stands a part on the ground, the step is solved again with the
     ground searched wherever the picture shows a change (a part standing on its own, away from
     the base: see ``abys_ranked``'s ``wide_ground``), and that solution is kept when it
-    explains the picture better: by :data:`WIDE_MARGIN` when a part of it stands apart from
-    the base (:func:`_apart`), and then only if each such part shows itself
-    (:func:`_hidden_on_ground`).
+    explains the picture better: by any amount when it stands no more parts on the ground,
+    none apart from the base (:func:`_apart`), else by :data:`WIDE_MARGIN`, and then only if
+    each part it stands apart shows itself (:func:`_hidden_on_ground`).
 
     The step's budget (CPU seconds): once it is spent, no decision is revisited and the ground
     is not searched again; the greedy under way is finished, each of its remaining placement searches
@@ -352,12 +352,14 @@ def synthesize(
     # a build's first step: every part stands on the ground, wherever the picture shows it
     first = len(ctx.base) == 0
     preds, score, tried = _solve(ctx, types, time_limit_s, picture, tone, first, deadline)
-    on_ground = any(p.placed and p.attach == "ground" for p in preds)
+    on_ground = _grounded(preds)
     if (score < WIDE_BELOW or on_ground) and not first and _clock() < deadline:
         wide, wide_score, wide_tried = _solve(
             ctx, types, time_limit_s, picture, tone, True, deadline
         )
-        margin = WIDE_MARGIN if _apart(ctx, wide, preds) else 0.0
+        # a part moved along the ground, not far: no margin
+        near = _grounded(wide) <= on_ground and not _apart(ctx, wide, preds)
+        margin = 0.0 if near else WIDE_MARGIN
         if wide_score > score + margin + 1e-6 and not _hidden_on_ground(ctx, wide, preds):
             preds, score, tried = wide, wide_score, wide_tried
     said: dict[str, Any] = {}
@@ -449,9 +451,11 @@ MIN_SEARCH_S = 0.25
 #: on the ground, is solved again with the ground searched wherever the picture changed, not
 #: only right beside the base shape (a part a stud away from it is outside that search).
 WIDE_BELOW = 0.8
-#: ... and that solution is taken when it explains the picture better, by this much when it
-#: stands a part apart from the base (:func:`_apart`: seen along the camera's rays, a part far
-#: behind the shape can mimic one fixed onto it).
+#: ... and that solution is taken when it explains the picture better: by any amount when it
+#: only moves parts along the ground, not apart from the base (:func:`_apart`), else by this
+#: much (seen along the camera's rays, a part far behind the shape can mimic one fixed onto
+#: it; a part put on the ground beside the base explains another renderer's poorly fitting
+#: picture a little better as often as it is right).
 WIDE_MARGIN = 0.1
 #: ... and when each of its parts standing on the ground apart from the base shape (outside its
 #: footprint's box) shows at least this share of itself in front of the base: an instruction
@@ -464,6 +468,11 @@ WIDE_VISIBLE = 0.8
 #: footprint box stands beside it, not apart: a brick half a stud behind the model is as
 #: hidden by it as one touching it (the misread this guards against stood 15 studs behind).
 WIDE_BESIDE = 2
+
+
+def _grounded(preds: list[Prediction]) -> int:
+    """How many of ``preds`` stand on the ground."""
+    return sum(1 for p in preds if p.placed and p.attach == "ground")
 
 
 def _ground_gap(ctx: StepContext, p: Prediction) -> int | None:
@@ -621,9 +630,39 @@ def _solve(
         alt_preds, alt_taken, _, alt_score = attempt(moved)
         if alt_score > score + 1e-6:
             preds, score, taken = alt_preds, alt_score, alt_taken
+    # a round's next choices drawn exactly like its decision on the shape it was taken on (a
+    # side stud facing away, a part under others): a well explained step revisits nothing, so
+    # these solutions are tried here, for the step's ties (:func:`_ties`) that a later picture
+    # may tell apart
+    for level, (f, alts) in enumerate(zip(taken, options, strict=False)) if TIE_CHOICES > 1 else ():
+        near = [a for a in alts[1:TIE_CHOICES] if a != f and a in drawn]
+        if not near or f not in drawn or _clock() >= deadline:
+            continue
+        shape = ctx.base.copy()
+        for i, yaw, tr in taken[:level]:
+            shape.add(types[i].component, yaw, tr, 0)
+        depth = _bg.render(shape, ctx.camera, w, h, line_px=0.0).depth
+        for a in near:
+            if _seen_alike(drawn[f], drawn[a], depth):
+                alt_preds, alt_taken, _, alt_score = attempt([*taken[:level], a])
+                if alt_score > score + 1e-6:
+                    preds, score, taken = alt_preds, alt_score, alt_taken
     return preds, score, tried
 
 
+def _seen_alike(a: _Drawn, b: _Drawn, depth: np.ndarray) -> bool:
+    """Whether two candidates drawn alone (:func:`_draw_alone`) show the same pixels in the same
+    colours in front of a shape drawn at ``depth``."""
+    if a.box != b.box:
+        return False
+    seen_a = a.own & (a.depth < depth[a.box])
+    seen_b = b.own & (b.depth < depth[b.box])
+    return bool(np.array_equal(seen_a, seen_b) and np.array_equal(a.rgb[seen_a], b.rgb[seen_b]))
+
+
+#: Choices of each of a step's rounds (its decision included) looked at for placements drawn
+#: like the decision (:func:`_solve`'s last pass; 1: none).
+TIE_CHOICES = 3
 #: A multi-instance step whose parts explain the changed pixels at least this well
 #: (:func:`_explained`) is kept as the greedy solved it.
 WELL_EXPLAINED = 0.95
