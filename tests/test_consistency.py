@@ -18,7 +18,7 @@ from mepnet.consistency import (
     repair,
 )
 from mepnet.manual import answers_of, iter_manual_dirs, load_manual
-from mepnet.plan import plan_json, run_manual
+from mepnet.plan import plan_json, run_manual, step_matches
 from mepnet.stage2 import make_predictor
 from mepnet.stage2.base import EarlierStep, Prediction, StepContext
 
@@ -211,3 +211,53 @@ def test_a_tie_is_tried_only_where_it_opens_a_place_the_picture_shows():
     assert _opens(shape(base, blocking), shape(base, free), placed, changed, view)
     elsewhere = (plate1, (1, 4, 1))  # a tie between two corners the 2x2 plate never meets
     assert not _opens(shape(base, elsewhere), shape(base, free), placed, changed, view)
+
+
+def test_a_picture_from_a_new_side_tells_a_tie_apart():
+    """A 1x1 brick with a side stud on a 2x4 brick: seen from the manual camera's side two of
+    its yaws turn the stud away alike (no picture there can tell them apart); from the other
+    side the picture is at the drawing of the true one and far from the other's."""
+    from mepnet.consistency import tie_distances
+    from mepnet.geom import manual_camera
+
+    brick, side = _bg.Component.primitive("3001"), _bg.Component.primitive("87087")
+
+    def shape(yaw: int) -> _bg.Assembly:
+        a = _bg.Assembly()
+        a.add(brick, 0, (0, 3, 0), 4)
+        a.add(side, yaw, (0, 6, 0), 1)
+        return a
+
+    front = manual_camera(shape(0))
+    back = _bg.Camera(front.elevation, front.azimuth + 180.0, 0.0, front.scale, front.translation)
+    tied = [
+        (a, b)
+        for a in range(4)
+        for b in range(a + 1, 4)
+        if tie_distances(_bg.render(shape(a), front, 128, 128).rgb, shape(a), shape(b), front)
+        is None
+    ]
+    assert len(tied) == 1
+    a, b = tied[0]
+    for true, other in ((a, b), (b, a)):
+        picture = _bg.render(shape(true), back, 128, 128).rgb
+        d = tie_distances(picture, shape(true), shape(other), back)
+        assert d is not None and d[2] >= 100
+        assert d[0] < 0.05 < 0.5 < d[1]
+
+
+def test_a_tie_a_picture_from_a_new_side_tells_apart_is_settled_there(tmp_path: Path):
+    """Fresh F20 manual 15 step 3: a 1x1 brick with a side stud turned away from the camera;
+    its two yaws that turn the stud away draw every picture alike until step 11, where the
+    view turns a quarter: stage 2 keeps the other yaw as a tie though the step is well
+    explained (a round's next choice drawn exactly like its decision), and step 11's picture
+    shows which one it is: the plan takes the tie there."""
+    man = load_manual(next(iter(iter_manual_dirs(generate_manuals(tmp_path, 1, 930015)))))
+    man.main.steps[:] = man.main.steps[:11]
+    run = run_manual(man, make_predictor("mepnet"))
+    step3 = run.main.steps[2]
+    assert any(p.extra.get("ties") for p in step3.predictions)
+    revised = [r for s in run.main.steps for r in s.revisions]
+    assert [(r.step, r.found_at) for r in revised] == [(3, 11)]
+    assert revised[0].disagreement[1] < revised[0].disagreement[0]
+    assert step_matches(run, step3) == 1
