@@ -588,3 +588,52 @@ def test_edges_tell_a_turned_part_whatever_the_renderer_draws():
             r = _bg.render(shape(yaw), camera, 128, 128)
             found.append(_edge_disagreement(ctx, shape(yaw), r.rgb, r.ids == 1, changed, edges))
         assert found[0] == (0, 0) and sum(found[1]) > 100, found
+
+
+#: A 2x4 brick, then a 1x1 brick with a side stud on it.
+SIDE_STUD = """0 a side stud
+1 4 0 -24 0 1 0 0 0 1 0 0 0 1 3001.dat
+0 STEP
+1 2 -30 -48 -10 1 0 0 0 1 0 0 0 1 87087.dat
+0 STEP
+"""
+
+
+def test_a_solution_drawn_alike_is_kept_as_a_tie_though_scored_a_little_lower(tmp_path: Path):
+    """Another renderer's picture scores two yaws of a side-stud brick a little apart either
+    way where the stud barely shows: a solution within ``NEAR_TIE`` that fills the same boxes
+    and is drawn alike (``ALIKE_SHARE``) is one of the step's ties; one drawn unlike is not,
+    and one scored the same is, however drawn."""
+    import mepnet.stage2.synthesis as synthesis
+    from mepnet.manual import answers_of
+    from mepnet.stage2 import Prediction, StepContext
+
+    m = load_manual(manual_from_ldraw(SIDE_STUD, tmp_path))
+    answers = answers_of(m)
+    comps = answers.components(m)
+    ctx = StepContext(m.main.steps[1], answers.main.assembly_before(1, comps), comps, m.image_size)
+    (truth,) = answers.main.truth(1).placed()
+    w, h = m.image_size
+
+    def sol(yaw: int) -> list[Prediction]:
+        return [Prediction(0, truth.component, yaw=yaw, t=truth.t, attach="on_studs")]
+
+    drawn = {y: synthesis._drawing(ctx, sol(y)) for y in range(4)}
+
+    def differ(a: int, b: int) -> int:
+        return int((np.abs(drawn[a].astype(np.int16) - drawn[b]).max(axis=-1) > 24).sum())
+
+    limit = synthesis.ALIKE_SHARE * w * h
+    # the yaw kept: one whose stud faces away, alike another that turns it away too
+    kept = next(a for a in range(4) if any(differ(a, b) <= limit for b in range(4) if b != a))
+    alike = [y for y in range(4) if y != kept and differ(kept, y) <= limit]
+    unlike = [y for y in range(4) if y != kept and differ(kept, y) > limit]
+    assert alike and unlike
+    near = 0.5 * synthesis.NEAR_TIE
+    for y in alike:
+        assert synthesis._ties(ctx, sol(kept), 0.8, [(0.8, sol(kept)), (0.8 - near, sol(y))])
+    for y in unlike:
+        assert not synthesis._ties(ctx, sol(kept), 0.8, [(0.8, sol(kept)), (0.8 - near, sol(y))])
+        assert synthesis._ties(ctx, sol(kept), 0.8, [(0.8, sol(kept)), (0.8, sol(y))])
+    far = 2 * synthesis.NEAR_TIE
+    assert not synthesis._ties(ctx, sol(kept), 0.8, [(0.8, sol(kept)), (0.8 - far, sol(alike[0]))])

@@ -379,6 +379,16 @@ def synthesize(
 #: solutions come within 0.001, and predicting later steps again on each cost 0.2-0.4 s a step
 #: for no gain.
 TIE = 1e-9
+#: ... except solutions within this much that fill the same boxes and are drawn alike
+#: (:func:`_alike`; a part turned about itself whose difference the picture barely shows: a
+#: side stud peeking out by a few pixels, which another renderer's picture then scores a
+#: little apart either way).
+NEAR_TIE = 0.05
+#: Two drawings differing in at most this share of the image's pixels are drawn alike (32
+#: pixels of 256 x 256: 13 of a side stud peeking out past its brick, 67 of one in view).
+ALIKE_SHARE = 32 / 256**2
+#: Level (0-255) a channel must differ by for two drawings to differ at a pixel.
+ALIKE_LEVEL = 24
 #: Ties kept per step, best first.
 MAX_TIES = 3
 
@@ -416,16 +426,48 @@ def _ties(
             left.remove(hit)
         return not left
 
+    def boxes(a: list[Prediction]) -> list[Any]:
+        out = []
+        for p in a:
+            one = _bg.Assembly()
+            one.add(ctx.components[p.component], p.yaw, p.t, 0)  # type: ignore[arg-type]
+            out.append(one.bounds())
+        return sorted(out)
+
+    w, h = ctx.image_size
+    kept: tuple[list[Any], np.ndarray] | None = None  # the kept solution's boxes and drawing
     out: list[list[Prediction]] = []
     for s, alt in sorted(tried, key=lambda x: -x[0]):
-        if len(out) == MAX_TIES or s < score - TIE:
+        if len(out) == MAX_TIES or s < score - NEAR_TIE:
             break
         if not all(p.placed for p in alt) or len(alt) != len(preds):
             continue
         if same(alt, preds) or any(same(alt, o) for o in out):
             continue
+        if s < score - TIE:  # a near tie: the same boxes, drawn alike
+            if kept is None:
+                kept = (boxes(preds), _drawing(ctx, preds))
+            if boxes(alt) != kept[0] or not _alike(_drawing(ctx, alt), kept[1], w * h):
+                continue
         out.append(alt)
     return [_placements(alt) for alt in out]
+
+
+def _drawing(ctx: StepContext, preds: list[Prediction]) -> np.ndarray:
+    """The base with ``preds`` placed, drawn with the step's camera ((H, W, 3) uint8)."""
+    w, h = ctx.image_size
+    asm = ctx.base.copy()
+    for p in preds:
+        if p.placed:
+            asm.add(ctx.components[p.component], p.yaw, p.t, ctx.colour(p.entry))  # type: ignore[arg-type]
+    return _bg.render(asm, ctx.camera, w, h).rgb
+
+
+def _alike(a: np.ndarray, b: np.ndarray, size: int) -> bool:
+    """Whether two drawings ((..., 3) uint8) of a picture of ``size`` pixels differ in at most
+    :data:`ALIKE_SHARE` of them."""
+    differ = np.abs(a.astype(np.int16) - b).max(axis=-1) > ALIKE_LEVEL
+    return int(differ.sum()) <= ALIKE_SHARE * size
 
 
 #: CPU seconds (:func:`_clock`) one step's synthesis may take before it stops revisiting
@@ -651,13 +693,15 @@ def _solve(
 
 
 def _seen_alike(a: _Drawn, b: _Drawn, depth: np.ndarray) -> bool:
-    """Whether two candidates drawn alone (:func:`_draw_alone`) show the same pixels in the same
-    colours in front of a shape drawn at ``depth``."""
+    """Whether two candidates drawn alone (:func:`_draw_alone`) show alike (:func:`_alike`) in
+    front of a shape drawn at ``depth`` (the whole image's)."""
     if a.box != b.box:
         return False
     seen_a = a.own & (a.depth < depth[a.box])
     seen_b = b.own & (b.depth < depth[b.box])
-    return bool(np.array_equal(seen_a, seen_b) and np.array_equal(a.rgb[seen_a], b.rgb[seen_b]))
+    return _alike(
+        np.where(seen_a[..., None], a.rgb, 0), np.where(seen_b[..., None], b.rgb, 0), depth.size
+    )
 
 
 #: Choices of each of a step's rounds (its decision included) looked at for placements drawn
