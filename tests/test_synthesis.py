@@ -308,9 +308,9 @@ NEAR = """0 a brick a stud away
 
 def test_a_part_a_stud_from_the_base_is_found(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
     """A part on the ground a stud from the base is outside the ground searched right beside
-    the base: a step the narrow search stands a part on the ground for is solved again with
-    the ground searched where the picture changed, however well it explains the picture, and
-    that solution needs no margin when its part stands beside the base, not apart."""
+    the base: a part the narrow search stands on the ground is placed again last with the
+    ground searched where the picture changed, however well the step explains the picture,
+    and that solution needs no margin when its part stands beside the base, not apart."""
     import mepnet.stage2.synthesis as synthesis
     from mepnet.manual import answers_of
     from mepnet.stage2 import StepContext
