@@ -637,3 +637,43 @@ def test_a_solution_drawn_alike_is_kept_as_a_tie_though_scored_a_little_lower(tm
         assert synthesis._ties(ctx, sol(kept), 0.8, [(0.8, sol(kept)), (0.8, sol(y))])
     far = 2 * synthesis.NEAR_TIE
     assert not synthesis._ties(ctx, sol(kept), 0.8, [(0.8, sol(kept)), (0.8 - far, sol(alike[0]))])
+
+
+#: A 2x4 brick, then a 2x2 slope on it.
+SLOPE_ON_BRICK = """0 a slope
+1 4 0 -24 0 1 0 0 0 1 0 0 0 1 3001.dat
+0 STEP
+1 2 -20 -48 10 0 0 1 0 1 0 -1 0 0 3039.dat
+0 STEP
+"""
+
+
+def test_a_part_turned_about_itself_is_tried(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
+    """A slope put on the right cells facing the wrong way (the placement search made to find
+    only the other ways): the step explained poorly has each part turned about itself
+    (``TURNS``: another yaw, the same cells), and the true way wins."""
+    import mepnet.stage2.synthesis as synthesis
+    from mepnet import _brickgeom as _bg
+
+    m = load_manual(manual_from_ldraw(SLOPE_ON_BRICK, tmp_path))
+    run = run_manual(m, make_predictor("synthesis"), teacher_forced=True)
+    assert step_matches(run, run.main.steps[-1]) == 1
+    (right,) = run.main.steps[-1].predictions  # in the plan's frame
+    comp = run.components[right.component]
+    turned = synthesis._turns(comp, right.yaw, right.t)  # type: ignore[arg-type]
+    assert len(turned) == 3  # a 2x2 slope faces four ways on the same cells
+    real = _bg.abys_ranked
+
+    def turned_only(asm, cam, w, h, component, mask, k, *rest, **kwargs):  # type: ignore[no-untyped-def]
+        ranked, timed_out = real(asm, cam, w, h, component, mask, 10_000, *rest, **kwargs)
+        keep = [r for r in ranked if any(comp.same_placement(r[0], r[1], y, t) for y, t in turned)]
+        return keep, timed_out
+
+    monkeypatch.setattr(synthesis._bg, "abys_ranked", turned_only)
+    found = run_manual(m, make_predictor("synthesis"), teacher_forced=True)
+    assert step_matches(found, found.main.steps[-1]) == 1
+    monkeypatch.setattr(synthesis, "TURNS", False)
+    stuck = run_manual(m, make_predictor("synthesis"), teacher_forced=True)
+    assert step_matches(stuck, stuck.main.steps[-1]) == 0
+    (wrong,) = stuck.main.steps[-1].predictions
+    assert any(comp.same_placement(wrong.yaw, wrong.t, y, t) for y, t in turned)

@@ -714,6 +714,19 @@ def _solve(
         alt_preds, alt_taken, _, alt_score = attempt(moved)
         if alt_score > score + 1e-6:
             preds, score, taken = alt_preds, alt_score, alt_taken
+    # each part turned about itself, filling the same cells (a slope or a panel facing the
+    # other way, a corner plate's corner, a side stud): a decision whose next choices all lay
+    # elsewhere never tries it
+    for level in range(len(taken)) if TURNS and len(taken) == total else ():
+        if score >= WELL_EXPLAINED or _clock() >= deadline:
+            break
+        i, yaw, tr = taken[level]
+        for turned in _turns(types[i].component, yaw, tr):
+            alt_preds, alt_taken, _, alt_score = attempt(
+                [*taken[:level], (i, *turned), *taken[level + 1 :]]
+            )
+            if alt_score > score + 1e-6:
+                preds, score, taken = alt_preds, alt_score, alt_taken
     # a round's next choices drawn exactly like its decision on the shape it was taken on (a
     # side stud facing away, a part under others): a well explained step revisits nothing, so
     # these solutions are tried here, for the step's ties (:func:`_ties`) that a later picture
@@ -734,6 +747,34 @@ def _solve(
     return preds, score, tried
 
 
+def _turns(
+    comp: _bg.Component, yaw: int, t: tuple[int, int, int]
+) -> list[tuple[int, tuple[int, int, int]]]:
+    """The other placements of ``comp`` filling the same box as at ``(yaw, t)``: each other
+    yaw, moved so that its box is the same, unless it is the same placement (symmetry)."""
+
+    def box(y: int) -> Any:
+        one = _bg.Assembly()
+        one.add(comp, y, t, 0)  # a yaw turns about the vertical: as high as at ``yaw``
+        return one.bounds()
+
+    lo, hi = box(yaw)
+    out: list[tuple[int, tuple[int, int, int]]] = []
+    for y in range(4):
+        if y == yaw:
+            continue
+        lo2, hi2 = box(y)
+        d = tuple(a - b for a, b in zip(lo, lo2, strict=True))
+        if tuple(a - b for a, b in zip(hi, hi2, strict=True)) != d:
+            continue  # turned, it fills other cells
+        t2 = (t[0] + d[0], t[1] + d[1], t[2] + d[2])
+        if not comp.same_placement(yaw, t, y, t2) and not any(
+            comp.same_placement(y, t2, *o) for o in out
+        ):
+            out.append((y, t2))
+    return out
+
+
 def _seen_alike(a: _Drawn, b: _Drawn, depth: np.ndarray) -> bool:
     """Whether two candidates drawn alone (:func:`_draw_alone`) show alike (:func:`_alike`) in
     front of a shape drawn at ``depth`` (the whole image's)."""
@@ -746,6 +787,9 @@ def _seen_alike(a: _Drawn, b: _Drawn, depth: np.ndarray) -> bool:
     )
 
 
+#: Whether a step explained worse than :data:`WELL_EXPLAINED` has each of its parts turned
+#: about itself (another yaw, the same cells: :func:`_turns`) (:func:`_solve`).
+TURNS = True
 #: Choices of each of a step's rounds (its decision included) looked at for placements drawn
 #: like the decision (:func:`_solve`'s last pass; 1: none).
 TIE_CHOICES = 3
