@@ -22,6 +22,7 @@ from mepnet.stage2.base import Prediction, StepContext
 from mepnet.stage2.synthesis import (
     PAGE_LIKE,
     _max_filter,
+    drawn_differ,
     edge_map,
     silhouette,
     step_change,
@@ -339,8 +340,6 @@ def repair(
 # Ties: an earlier step's solutions its picture could not tell apart, seen from a new side
 
 
-#: Two drawings of the model differ where a channel differs by more than this (0-255).
-DRAWN_LEVEL = 24
 #: A picture tells two shapes apart only where their drawings differ in at least this many
 #: pixels.
 TIE_SEEN_PX = 12
@@ -358,7 +357,7 @@ def tie_distances(
     h, w = picture.shape[:2]
     ra = _bg.render(a, camera, w, h).rgb
     rb = _bg.render(b, camera, w, h).rgb
-    differ = np.abs(ra.astype(np.int16) - rb).max(axis=-1) > DRAWN_LEVEL
+    differ = drawn_differ(ra, rb)
     if int(differ.sum()) < TIE_SEEN_PX:
         return None
     region = _max_filter(differ, 1)

@@ -82,6 +82,7 @@ from mepnet.plan import (
     step_motion,
 )
 from mepnet.stage2 import LIFTS, PREDICTORS, Prediction, Predictor, make_predictor
+from mepnet.stage2.synthesis import DRAWN_LEVEL, drawn_differ
 
 #: The ``written_by`` mark of the metrics files ``--json`` writes (and may replace).
 WRITER = "mepnet.eval"
@@ -638,10 +639,9 @@ def _camera_metrics(
     }
 
 
-#: Pixels in which two drawings may differ and still be the same picture (:func:`pictures_alike`).
+#: Pixels in which two drawings may differ and still be the same picture (:func:`pictures_alike`;
+#: a pixel differs as :func:`mepnet.stage2.synthesis.drawn_differ` says).
 DRAWN_TOLERANCE_PX = 2
-#: A pixel differs when a colour channel differs by more than this (of 255).
-_DRAWN_LEVEL = 24
 
 
 def pictures_alike(
@@ -675,7 +675,7 @@ def pictures_alike(
         cam = build.steps[k].camera_object()
         ra = _bg.render(a, cam, w, h).rgb.astype(np.int16)
         rb = _bg.render(b, cam, w, h).rgb.astype(np.int16)
-        if int((np.abs(ra - rb).max(axis=-1) > _DRAWN_LEVEL).sum()) > DRAWN_TOLERANCE_PX:
+        if int(drawn_differ(ra, rb).sum()) > DRAWN_TOLERANCE_PX:
             return False
     return True
 
@@ -765,7 +765,7 @@ def _unmatched(a: np.ndarray, b: np.ndarray) -> int:
     for dy in range(3):
         for dx in range(3):
             near = pad[dy : dy + h, dx : dx + w]
-            differs &= np.abs(a - near).max(axis=-1) > _DRAWN_LEVEL
+            differs &= np.abs(a - near).max(axis=-1) > DRAWN_LEVEL
     return int(differs.sum())
 
 

@@ -32,6 +32,17 @@ from mepnet._brickgeom import (
 )
 
 
+def placement_box(
+    component: Component, yaw: int, t: tuple[int, int, int]
+) -> tuple[tuple[int, int, int], tuple[int, int, int]]:
+    """The lattice box ``component`` fills at ``(yaw, t)``: its lowest and highest cells."""
+    alone = Assembly()
+    alone.add(component, yaw, t, 0)
+    box = alone.bounds()
+    assert box is not None  # every component fills a cell
+    return box
+
+
 def rotate_lattice(
     p: tuple[int, int, int] | list[int], yaw: int, t: tuple[int, int, int] | list[int] = (0, 0, 0)
 ) -> tuple[int, int, int]:
@@ -94,6 +105,7 @@ def submodule_from_placed(
 ATTACH_KINDS = ("on_studs", "from_below", "ground")
 
 __all__ = [
+    "placement_box",
     "ATTACH_KINDS",
     "LDU_PER_CELL",
     "Assembly",

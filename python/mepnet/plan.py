@@ -40,7 +40,7 @@ from mepnet.frames import (
     placement_key,
     symmetries,
 )
-from mepnet.geom import BrickGeomError, submodule_from_placed
+from mepnet.geom import BrickGeomError, placement_box, submodule_from_placed
 from mepnet.ldraw.io import LDrawFile, LDrawModel, LDrawRef, ldraw_placement
 from mepnet.ldraw.io import write as write_ldraw
 from mepnet.manual import Build, ComponentRef, Manual, Step, StepTruth
@@ -324,11 +324,7 @@ TIE_OPENS = 6
 
 def _box(p: Placement) -> tuple[tuple[int, int, int], tuple[int, int, int]]:
     """The lattice box a placement fills."""
-    alone = _bg.Assembly()
-    alone.add(p.component, p.yaw, p.t, 0)
-    box = alone.bounds()
-    assert box is not None
-    return box
+    return placement_box(p.component, p.yaw, p.t)
 
 
 def _opens(

@@ -32,7 +32,7 @@ import numpy as np
 
 from mepnet import _brickgeom as _bg
 from mepnet.errors import ManualFormatError
-from mepnet.geom import LDU_PER_CELL, BrickGeomError, rotate_lattice, rotate_ldu
+from mepnet.geom import LDU_PER_CELL, BrickGeomError, placement_box, rotate_lattice, rotate_ldu
 from mepnet.stage2.base import Prediction, Predictor, StepContext
 from mepnet.state import (
     CHANGE_THRESHOLD,
@@ -352,10 +352,16 @@ def synthesize(
         tone = np.array([[1.0, 1.0, 1.0], [0.0, 0.0, 0.0]])  # gain, bias per channel
     # a build's first step: every part stands on the ground, wherever the picture shows it
     first = len(ctx.base) == 0
-    preds, score, tried = _solve(ctx, types, time_limit_s, picture, tone, first, deadline)
+    mask = np.zeros(ctx.image_size[::-1], bool)  # (H, W): every type's changed pixels
+    for t in types:
+        mask |= t.mask
+    edges = edge_map(picture) if picture is not None and EDGE_WEIGHT else None
+    preds, score, tried = _solve(
+        ctx, types, time_limit_s, picture, tone, first, mask, edges, deadline
+    )
     if score < WIDE_BELOW and not first and _clock() < deadline:
         wide, wide_score, wide_tried = _solve(
-            ctx, types, time_limit_s, picture, tone, True, deadline
+            ctx, types, time_limit_s, picture, tone, True, mask, edges, deadline
         )
         if _wide_wins(ctx, preds, score, wide, wide_score):
             preds, score, tried = wide, wide_score, wide_tried
@@ -363,10 +369,6 @@ def synthesize(
         # each part standing on the ground placed again last, the ground searched wherever
         # the picture changed (1% more CPU time a step on our pictures; the whole step solved
         # again so, 15%)
-        mask = np.zeros(types[0].mask.shape, bool)
-        for t in types:
-            mask |= t.mask
-        edges = edge_map(picture) if picture is not None and EDGE_WEIGHT else None
         entry_type = {t.entry: i for i, t in enumerate(types)}
         for g, p in enumerate(list(preds)):
             if not (p.placed and p.attach == "ground") or _clock() >= deadline:
@@ -410,8 +412,8 @@ NEAR_TIE = 0.05
 #: Two drawings differing in at most this share of the image's pixels are drawn alike (32
 #: pixels of 256 x 256: 13 of a side stud peeking out past its brick, 67 of one in view).
 ALIKE_SHARE = 32 / 256**2
-#: Level (0-255) a channel must differ by for two drawings to differ at a pixel.
-ALIKE_LEVEL = 24
+#: Two drawings differ at a pixel where a colour channel differs by more than this (0-255).
+DRAWN_LEVEL = 24
 #: Ties kept per step, best first.
 MAX_TIES = 3
 
@@ -450,12 +452,7 @@ def _ties(
         return not left
 
     def boxes(a: list[Prediction]) -> list[Any]:
-        out = []
-        for p in a:
-            one = _bg.Assembly()
-            one.add(ctx.components[p.component], p.yaw, p.t, 0)  # type: ignore[arg-type]
-            out.append(one.bounds())
-        return sorted(out)
+        return sorted(placement_box(ctx.components[p.component], p.yaw, p.t) for p in a)  # type: ignore[arg-type]
 
     w, h = ctx.image_size
     kept: tuple[list[Any], np.ndarray] | None = None  # the kept solution's boxes and drawing
@@ -476,21 +473,30 @@ def _ties(
     return [_placements(alt) for alt in out]
 
 
-def _drawing(ctx: StepContext, preds: list[Prediction]) -> np.ndarray:
-    """The base with ``preds`` placed, drawn with the step's camera ((H, W, 3) uint8)."""
-    w, h = ctx.image_size
+def _with_parts(ctx: StepContext, preds: list[Prediction]) -> _bg.Assembly:
+    """A copy of the base with the placed ``preds`` added, in their callout colours."""
     asm = ctx.base.copy()
     for p in preds:
         if p.placed:
             asm.add(ctx.components[p.component], p.yaw, p.t, ctx.colour(p.entry))  # type: ignore[arg-type]
-    return _bg.render(asm, ctx.camera, w, h).rgb
+    return asm
+
+
+def _drawing(ctx: StepContext, preds: list[Prediction]) -> np.ndarray:
+    """The base with ``preds`` placed, drawn with the step's camera ((H, W, 3) uint8)."""
+    w, h = ctx.image_size
+    return _bg.render(_with_parts(ctx, preds), ctx.camera, w, h).rgb
 
 
 def _alike(a: np.ndarray, b: np.ndarray, size: int) -> bool:
     """Whether two drawings ((..., 3) uint8) of a picture of ``size`` pixels differ in at most
     :data:`ALIKE_SHARE` of them."""
-    differ = np.abs(a.astype(np.int16) - b).max(axis=-1) > ALIKE_LEVEL
-    return int(differ.sum()) <= ALIKE_SHARE * size
+    return int(drawn_differ(a, b).sum()) <= ALIKE_SHARE * size
+
+
+def drawn_differ(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Where two drawings ((..., 3) uint8) differ: a channel by more than :data:`DRAWN_LEVEL`."""
+    return np.abs(a.astype(np.int16) - b).max(axis=-1) > DRAWN_LEVEL
 
 
 #: CPU seconds (:func:`_clock`) one step's synthesis may take before it stops revisiting
@@ -566,12 +572,7 @@ def _ground_gap(ctx: StepContext, p: Prediction) -> int | None:
     box = ctx.base.bounds()
     if not (p.placed and p.attach == "ground") or box is None:
         return None
-    alone = _bg.Assembly()
-    alone.add(ctx.components[p.component], p.yaw, p.t, 0)  # type: ignore[arg-type]
-    own = alone.bounds()
-    if own is None:
-        return None
-    (lo, hi), (plo, phi) = box, own
+    (lo, hi), (plo, phi) = box, placement_box(ctx.components[p.component], p.yaw, p.t)  # type: ignore[arg-type]
     return max(0, *(max(lo[a] - phi[a], plo[a] - hi[a]) - 1 for a in (0, 2)))
 
 
@@ -616,19 +617,18 @@ def _solve(
     picture: np.ndarray | None,
     tone: np.ndarray,
     wide: bool,
+    mask: np.ndarray,
+    picture_edges: np.ndarray | None,
     deadline: float = float("inf"),
 ) -> tuple[list[Prediction], float, list[tuple[float, list[Prediction]]]]:
     """:func:`synthesize`'s greedy with its revisits, the ground searched beside the base or
     (``wide``) wherever the picture changed, no revisit begun after ``deadline``
-    (:func:`_clock`); returns the predictions, how well they explain the picture
-    (:func:`_explained`), and every complete solution tried with its score."""
+    (:func:`_clock`); ``mask``, ``picture_edges``: what :func:`_explained` weighs (the types'
+    masks together, the picture's :func:`edge_map`). Returns the predictions, how well they
+    explain the picture, and every complete solution tried with its score."""
     w, h = ctx.image_size
-    mask = np.zeros((h, w), bool)
-    for t in types:
-        mask |= t.mask
     memo: dict[frozenset[First], tuple[Any, list[tuple[float, First]]]] = {}
     drawn: dict[First, _Drawn] = {}
-    picture_edges = edge_map(picture) if picture is not None and EDGE_WEIGHT else None
 
     total = sum(t.count for t in types)
 
@@ -753,17 +753,12 @@ def _turns(
     """The other placements of ``comp`` filling the same box as at ``(yaw, t)``: each other
     yaw, moved so that its box is the same, unless it is the same placement (symmetry)."""
 
-    def box(y: int) -> Any:
-        one = _bg.Assembly()
-        one.add(comp, y, t, 0)  # a yaw turns about the vertical: as high as at ``yaw``
-        return one.bounds()
-
-    lo, hi = box(yaw)
+    lo, hi = placement_box(comp, yaw, t)
     out: list[tuple[int, tuple[int, int, int]]] = []
     for y in range(4):
         if y == yaw:
             continue
-        lo2, hi2 = box(y)
+        lo2, hi2 = placement_box(comp, y, t)  # a yaw turns about the vertical: as high
         d = tuple(a - b for a, b in zip(lo, lo2, strict=True))
         if tuple(a - b for a, b in zip(hi, hi2, strict=True)) != d:
             continue  # turned, it fills other cells
@@ -920,11 +915,8 @@ def _explained(
     :data:`SHOWN_EDGE_WEIGHT`; ``picture_edges``: the picture's :func:`edge_map`, None: not
     weighed)."""
     w, h = ctx.image_size
-    asm = ctx.base.copy()
-    n0 = len(asm)
-    for p in preds:
-        if p.placed:
-            asm.add(ctx.components[p.component], p.yaw, p.t, ctx.colour(p.entry))  # type: ignore[arg-type]
+    n0 = len(ctx.base)
+    asm = _with_parts(ctx, preds)
     r = _bg.render(asm, ctx.camera, w, h)
     new = r.ids >= n0
     union = int((new | mask).sum())
