@@ -520,8 +520,10 @@ MIN_SEARCH_S = 0.25
 
 #: A step explained worse than this (:func:`_explained`) is solved again with the ground
 #: searched wherever the picture changed, not only right beside the base shape (a part a stud
-#: away from it is outside that search).
-WIDE_BELOW = 0.8
+#: away from it is outside that search). (0.8 until stop 43: S20 manual 7 step 7, a tile
+#: standing apart put where a jumper plate belongs and the jumper hidden, explained 0.82; the
+#: parts moved one at a time (:data:`WIDE_ON_GROUND`) never move both.)
+WIDE_BELOW = 0.85
 #: Whether a step explained better, whose solution stands a part on the ground, has each such
 #: part placed again last with the ground searched wherever the picture changed.
 WIDE_ON_GROUND = True
@@ -698,17 +700,20 @@ def _solve(
     # last, with the time left, and kept only when it explains clearly more: a column hides
     # its lower parts, so a picture that barely tells placements apart (dark parts on a dark
     # base) is explained a little better by stacking parts out of sight
-    for prefix in _columns(ctx, types, time_limit_s, wide, deadline) if COLUMNS else []:
-        if score >= WELL_EXPLAINED or _clock() >= deadline:
+    # (the margin at most a share of what the step leaves unexplained: a column that explains
+    # a step exactly wins over a greedy a few hundredths short)
+    columns = _columns(ctx, types, taken, time_limit_s, wide, deadline) if score < CLOSE else []
+    for prefix in columns if COLUMNS else []:
+        if score >= CLOSE or _clock() >= deadline:
             break
         alt_preds, alt_taken, _, alt_score = attempt(prefix)
-        if alt_score > score + COLUMN_MARGIN:
+        if alt_score > score + min(COLUMN_MARGIN, COLUMN_SHARE * (1.0 - score)):
             preds, score, taken = alt_preds, alt_score, alt_taken
     # the step's parts moved together: placed one at a time, each fits what the ones before it
     # left, so a row of parts can end up a cell off as a whole (every part a little off the
     # picture, none better alone)
     for dx, dz in SHIFTS if len(taken) == total and total > 1 else ():
-        if score >= WELL_EXPLAINED or _clock() >= deadline:
+        if score >= CLOSE or _clock() >= deadline:
             break
         moved = [(i, yaw, (t[0] + dx, t[1], t[2] + dz)) for i, yaw, t in taken]
         alt_preds, alt_taken, _, alt_score = attempt(moved)
@@ -718,7 +723,7 @@ def _solve(
     # other way, a corner plate's corner, a side stud): a decision whose next choices all lay
     # elsewhere never tries it
     for level in range(len(taken)) if TURNS and len(taken) == total else ():
-        if score >= WELL_EXPLAINED or _clock() >= deadline:
+        if score >= CLOSE or _clock() >= deadline:
             break
         i, yaw, tr = taken[level]
         for turned in _turns(types[i].component, yaw, tr):
@@ -727,6 +732,15 @@ def _solve(
             )
             if alt_score > score + 1e-6:
                 preds, score, taken = alt_preds, alt_score, alt_taken
+    # the step's parts turned together about the middle of the box they fill, where turned
+    # they fill the same box (two 1x2 bricks side by side make a 2x2 column either way round:
+    # only the seam between them tells)
+    for turned in _step_turns(types, taken) if STEP_TURNS and len(taken) == total > 1 else ():
+        if score >= CLOSE or _clock() >= deadline:
+            break
+        alt_preds, alt_taken, _, alt_score = attempt(turned)
+        if alt_score > score + 1e-6:
+            preds, score, taken = alt_preds, alt_score, alt_taken
     # a round's next choices drawn exactly like its decision on the shape it was taken on (a
     # side stud facing away, a part under others): a well explained step revisits nothing, so
     # these solutions are tried here, for the step's ties (:func:`_ties`) that a later picture
@@ -770,6 +784,25 @@ def _turns(
     return out
 
 
+def _step_turns(types: list[SynthesisType], taken: list[First]) -> list[list[First]]:
+    """A step's decisions turned together by each other quarter turn about the vertical,
+    moved back into the box they filled; those that fill another box left out."""
+    boxes = [placement_box(types[i].component, yaw, t) for i, yaw, t in taken]
+    lo = tuple(min(b[0][a] for b in boxes) for a in range(3))
+    hi = tuple(max(b[1][a] for b in boxes) for a in range(3))
+    out: list[list[First]] = []
+    for r in (1, 2, 3):
+        turned = [(i, (yaw + r) % 4, rotate_lattice(t, r)) for i, yaw, t in taken]
+        tb = [placement_box(types[i].component, yaw, t) for i, yaw, t in turned]
+        lo2 = tuple(min(b[0][a] for b in tb) for a in range(3))
+        hi2 = tuple(max(b[1][a] for b in tb) for a in range(3))
+        d = tuple(a - b for a, b in zip(lo, lo2, strict=True))
+        if tuple(a - b for a, b in zip(hi, hi2, strict=True)) != d:
+            continue  # turned, the parts fill a box of another shape
+        out.append([(i, yaw, (t[0] + d[0], t[1] + d[1], t[2] + d[2])) for i, yaw, t in turned])
+    return out
+
+
 def _seen_alike(a: _Drawn, b: _Drawn, depth: np.ndarray) -> bool:
     """Whether two candidates drawn alone (:func:`_draw_alone`) show alike (:func:`_alike`) in
     front of a shape drawn at ``depth`` (the whole image's)."""
@@ -782,9 +815,18 @@ def _seen_alike(a: _Drawn, b: _Drawn, depth: np.ndarray) -> bool:
     )
 
 
-#: Whether a step explained worse than :data:`WELL_EXPLAINED` has each of its parts turned
-#: about itself (another yaw, the same cells: :func:`_turns`) (:func:`_solve`).
+#: A step explained worse than this (:func:`_explained`; 1: exactly) is tried again with its
+#: parts as a whole moved (:data:`SHIFTS`), each turned about itself (:data:`TURNS`), all
+#: turned together (:data:`STEP_TURNS`) and its equal parts stacked (:data:`COLUMNS`): a few
+#: solutions each, kept only when they explain the picture better; the searches over the
+#: greedy's decisions stop at :data:`WELL_EXPLAINED`.
+CLOSE = 0.99
+#: Whether a step explained worse than :data:`CLOSE` has each of its parts turned about itself
+#: (another yaw, the same cells: :func:`_turns`) (:func:`_solve`).
 TURNS = True
+#: ... and all its parts turned together about the box they fill, where they fill it turned
+#: (:func:`_step_turns`).
+STEP_TURNS = True
 #: Choices of each of a step's rounds (its decision included) looked at for placements drawn
 #: like the decision (:func:`_solve`'s last pass; 1: none).
 TIE_CHOICES = 3
@@ -815,34 +857,51 @@ PAIRS = True
 PAIR_CHOICES = 4
 #: Passes over the pairs (a pair taken again may leave another pair to mend).
 PAIR_PASSES = 2
-#: Whether a step adding several identical parts explained worse than :data:`WELL_EXPLAINED`
+#: Whether a step adding several identical parts explained worse than :data:`CLOSE`
 #: is also solved with them stacked in one column (:func:`_columns`).
 COLUMNS = True
 #: Column placements tried per type.
 COLUMN_CHOICES = 3
 #: Moves (lattice cells along x and z) of all a step's parts together tried when the step is
-#: explained worse than :data:`WELL_EXPLAINED` (:func:`_solve`).
+#: explained worse than :data:`CLOSE` (:func:`_solve`).
 SHIFTS = ((1, 0), (-1, 0), (0, 1), (0, -1), (2, 0), (-2, 0), (0, 2), (0, -2))
 #: How much better (:func:`_explained`) a step solved with a column must explain its picture
-#: than the step solved without one.
+#: than the step solved without one ...
 COLUMN_MARGIN = 0.03
+#: ... or this share of what that leaves unexplained, if less (S20 manual 19 step 1: a column
+#: explaining a first step exactly, 1.0 against the greedy's 0.97).
+COLUMN_SHARE = 0.5
 
 
 def _columns(
     ctx: StepContext,
     types: list[SynthesisType],
+    taken: list[First],
     time_limit_s: float,
     wide: bool,
     deadline: float,
 ) -> list[list[First]]:
     """For each type of two or more instances of one part, the best placements of all of them
     stacked straight up (each on the one below, same yaw), as decisions for :func:`_greedy`,
-    bottom first: the column is ranked as one component (``abys_ranked`` on the type's mask)."""
+    bottom first: the column is ranked as one component (``abys_ranked`` on the type's mask
+    less the pixels the other types' parts in ``taken`` draw: on a build's first step every
+    type's mask is the whole picture)."""
     w, h = ctx.image_size
     out: list[list[First]] = []
+    ids = None
     for i, t in enumerate(types):
         comp = t.component
         if t.count < 2 or comp.is_submodule or not t.mask.any():
+            continue
+        if ids is None:
+            shape = ctx.base.copy()
+            for j, yaw, tr in taken:
+                shape.add(types[j].component, yaw, tr, 0)
+            ids = _bg.render(shape, ctx.camera, w, h, line_px=0.0).ids
+        n0 = len(ctx.base)
+        others = [n0 + x for x, (j, _, _) in enumerate(taken) if j != i]
+        mask = t.mask & ~np.isin(ids, others)
+        if not mask.any():
             continue
         height = int(np.ptp(comp.voxels[:, 1])) + 1
         poses = np.array([[0, 0, k * height, 0] for k in range(t.count)], np.int64)
@@ -852,7 +911,7 @@ def _columns(
             continue
         limit = min(time_limit_s, max(deadline - _clock(), MIN_SEARCH_S))
         ranked, _ = _bg.abys_ranked(
-            ctx.base, ctx.camera, w, h, column, t.mask, COLUMN_CHOICES, limit, wide_ground=wide
+            ctx.base, ctx.camera, w, h, column, mask, COLUMN_CHOICES, limit, wide_ground=wide
         )
         for yaw, tr, _ in ranked:
             t0 = (int(tr[0]), int(tr[1]), int(tr[2]))
