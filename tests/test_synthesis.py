@@ -686,7 +686,7 @@ def study(tmp_path_factory: pytest.TempPathFactory) -> Path:
     from conftest import generate_manuals
 
     out = tmp_path_factory.mktemp("study")
-    for seed in (980004, 980007, 980019):
+    for seed in (980004, 980007, 980013, 980019):
         generate_manuals(out, 1, seed)
     return out
 
@@ -755,3 +755,18 @@ def test_a_part_apart_that_took_another_parts_place_is_moved_with_it(
     assert _main_step(study / "manual_00980007", 7) == (6, 6)
     monkeypatch.setattr(synthesis, "WIDE_BELOW", 0.8)
     assert _main_step(study / "manual_00980007", 7) == (4, 6)
+
+
+def test_a_new_part_in_front_of_one_of_its_colour_is_changed_inside_its_outline(
+    study: Path, monkeypatch: pytest.MonkeyPatch
+):
+    """S20 manual 13 step 4: a tan 1x2x2 brick stands in front of a tan slope; its front face
+    covers the slope's in the same colour and shade, so the change map has a hole inside its
+    outline (IoU 0.60 for the truth against 0.80 for a brick put behind). The unchanged pixels
+    the changed ones enclose where the base draws a part of a colour the step adds are marked
+    changed (``fill_covered``), and the step is right."""
+    import mepnet.stage2.synthesis as synthesis
+
+    assert _main_step(study / "manual_00980013", 4) == (3, 3)
+    monkeypatch.setattr(synthesis, "FILL_COVERED", False)
+    assert _main_step(study / "manual_00980013", 4) == (2, 3)

@@ -199,7 +199,38 @@ def step_change(ctx: StepContext, picture: np.ndarray) -> tuple[np.ndarray, np.n
         )
     change = tolerate_lines(change, outline | drawn_edges(state))
     fill_enclosed(change, picture, ctx, None if before is None else before[0])
+    if FILL_COVERED:
+        fill_covered(change, ctx)
     return change, tone
+
+
+#: Whether :func:`step_change` marks as changed what :func:`fill_covered` finds.
+FILL_COVERED = True
+#: ... closing gaps of up to twice this many pixels in the changed pixels' ring.
+COVERED_GAP = 2
+
+
+def fill_covered(change: np.ndarray, ctx: StepContext) -> None:
+    """Mark as changed (in place) the unchanged pixels that changed ones enclose where the base
+    shape draws a part of a colour the step adds: a new part in front of a part of its own
+    colour changes only its outline and the faces shaded otherwise, so the change map has a
+    hole where its face covers the old one."""
+    changed = change > CHANGE_THRESHOLD
+    if not changed.any() or not len(ctx.base):
+        return
+    ring = _max_filter(changed, COVERED_GAP)
+    flat = np.ascontiguousarray(np.repeat(np.where(ring, 0, 255).astype(np.uint8)[..., None], 3, 2))
+    hole = _bg.foreground_mask(flat, 127.0, 0)[0] & ~ring
+    if not hole.any():
+        return
+    hole = _max_filter(hole, COVERED_GAP) & ~changed  # out to the changed pixels again
+    w, h = ctx.image_size
+    ids = _bg.render(ctx.base, ctx.camera, w, h, line_px=0.0).ids
+    colours = {c.colour for c in ctx.step.components}
+    same = [int(i) for i in np.unique(ids[hole]) if i >= 0 and ctx.base.colour(int(i)) in colours]
+    if same:
+        fill = hole & np.isin(ids, same)
+        change[fill] = np.maximum(change[fill], 1.0)
 
 
 #: A drawn colour this close (0-255, any channel) to the page's is no evidence of the model.
