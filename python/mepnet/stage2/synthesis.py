@@ -991,6 +991,12 @@ def _edge_disagreement(
     return int(unseen.sum()), int(undrawn.sum())
 
 
+#: A step's part drawn where the picture did not change and within this much (largest channel,
+#: in [0, 1], after the tone fit) of the picture's colour counts neither for nor against it in
+#: :func:`_explained`'s IoU (0: counts against).
+QUIET_LEVEL = 0.1
+
+
 def _explained(
     ctx: StepContext,
     preds: list[Prediction],
@@ -1009,7 +1015,16 @@ def _explained(
     asm = _with_parts(ctx, preds)
     r = _bg.render(asm, ctx.camera, w, h)
     new = r.ids >= n0
-    union = int((new | mask).sum())
+    outside = new & ~mask
+    if picture is not None and QUIET_LEVEL > 0 and outside.any():
+        # a part drawn in the picture's own colour where the picture did not change (in front
+        # of a part of its colour) is no evidence against it: out of the IoU
+        off = np.abs(picture[outside] - (r.rgb[outside] / 255.0 * tone[0] + tone[1])).max(axis=1)
+        quiet = np.zeros_like(new)
+        quiet[outside] = off < QUIET_LEVEL
+        union = int((new | mask).sum() - quiet.sum())
+    else:
+        union = int((new | mask).sum())
     score = float((new & mask).sum() / union) if union else 0.0
     if picture is not None and new.any():
         rendered = r.rgb[new] / 255.0 * tone[0] + tone[1]
