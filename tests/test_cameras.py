@@ -120,7 +120,9 @@ def test_poses_with_estimated_cameras_stay_close_to_given_ones(
         right_given += accuracy(given)[0]  # type: ignore[arg-type]
     assert total >= 15
     # what is lost on these manuals: a step whose base is a plate hidden under three new parts
-    assert right >= right_given - 4, (right, right_given, total)
+    # (main step 2, 3 components) and two of main step 5's four (with given cameras that step
+    # was 3 of 4 right until stop 43's QUIET_LEVEL, 4 now; with estimated ones 2 before and after)
+    assert right >= right_given - 5, (right, right_given, total)
 
 
 def test_blank_and_noise_pictures_fail_their_step_and_the_plan_goes_on(
