@@ -437,7 +437,18 @@ pub(super) fn generate_submodule(
             "submodule too small".into(),
         ));
     }
-    let bricks: Vec<Brick> = fw
+    // The backward stage drops hidden units that nothing rests on (see `backward`); the
+    // submodule's shape is made from the instances its manual keeps, so that its steps add
+    // exactly its bricks.
+    let mut rng = Rng::new(seed, 11);
+    let view = ViewSampler::new(cfg, &mut rng);
+    let build = backward(cfg, &mut rng, &view, fw.instances, fw.units, true)?;
+    if build.instances.len() < 2 {
+        return Err(BrickGeomError::InvalidArgument(
+            "submodule too small".into(),
+        ));
+    }
+    let bricks: Vec<Brick> = build
         .instances
         .iter()
         .map(|i| Brick {
@@ -451,9 +462,6 @@ pub(super) fn generate_submodule(
         .collect();
     let name = format!("submodule_{index}");
     let component = Arc::new(Component::from_bricks(name.clone(), bricks)?);
-    let mut rng = Rng::new(seed, 11);
-    let view = ViewSampler::new(cfg, &mut rng);
-    let build = backward(cfg, &mut rng, &view, fw.instances, fw.units, true)?;
     Ok(SynthSubmodule {
         name,
         component,
