@@ -818,15 +818,18 @@ def _turns(
 def _step_turns(types: list[SynthesisType], taken: list[First]) -> list[list[First]]:
     """A step's decisions turned together by each other quarter turn about the vertical,
     moved back into the box they filled; those that fill another box left out."""
-    boxes = [placement_box(types[i].component, yaw, t) for i, yaw, t in taken]
-    lo = tuple(min(b[0][a] for b in boxes) for a in range(3))
-    hi = tuple(max(b[1][a] for b in boxes) for a in range(3))
+
+    def box(decisions: list[First]) -> tuple[tuple[int, ...], tuple[int, ...]]:
+        boxes = [placement_box(types[i].component, yaw, t) for i, yaw, t in decisions]
+        return tuple(min(b[0][a] for b in boxes) for a in range(3)), tuple(
+            max(b[1][a] for b in boxes) for a in range(3)
+        )
+
+    lo, hi = box(taken)
     out: list[list[First]] = []
     for r in (1, 2, 3):
         turned = [(i, (yaw + r) % 4, rotate_lattice(t, r)) for i, yaw, t in taken]
-        tb = [placement_box(types[i].component, yaw, t) for i, yaw, t in turned]
-        lo2 = tuple(min(b[0][a] for b in tb) for a in range(3))
-        hi2 = tuple(max(b[1][a] for b in tb) for a in range(3))
+        lo2, hi2 = box(turned)
         d = tuple(a - b for a, b in zip(lo, lo2, strict=True))
         if tuple(a - b for a, b in zip(hi, hi2, strict=True)) != d:
             continue  # turned, the parts fill a box of another shape
