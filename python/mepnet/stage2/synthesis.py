@@ -23,8 +23,9 @@ leave every mask, so the next instance fits the rest.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -198,9 +199,11 @@ def step_change(ctx: StepContext, picture: np.ndarray) -> tuple[np.ndarray, np.n
             change, np.where(trusted, previous_change(image, picture_before), 1.0), out=change
         )
     change = tolerate_lines(change, outline | drawn_edges(state))
-    fill_enclosed(change, picture, ctx, None if before is None else before[0])
+    # the base's instance ids, drawn once if either fill needs them
+    base_ids = functools.cache(lambda: _bg.render(ctx.base, ctx.camera, w, h, line_px=0.0).ids)
+    fill_enclosed(change, picture, ctx, None if before is None else before[0], base_ids)
     if FILL_COVERED:
-        fill_covered(change, ctx)
+        fill_covered(change, ctx, base_ids)
     return change, tone
 
 
@@ -210,11 +213,12 @@ FILL_COVERED = True
 COVERED_GAP = 2
 
 
-def fill_covered(change: np.ndarray, ctx: StepContext) -> None:
+def fill_covered(change: np.ndarray, ctx: StepContext, base_ids: Callable[[], np.ndarray]) -> None:
     """Mark as changed (in place) the unchanged pixels that changed ones enclose where the base
     shape draws a part of a colour the step adds: a new part in front of a part of its own
     colour changes only its outline and the faces shaded otherwise, so the change map has a
-    hole where its face covers the old one."""
+    hole where its face covers the old one. ``base_ids``: the base's instance id per pixel
+    (drawn with the step's camera, no lines)."""
     changed = change > CHANGE_THRESHOLD
     if not changed.any() or not len(ctx.base):
         return
@@ -224,8 +228,7 @@ def fill_covered(change: np.ndarray, ctx: StepContext) -> None:
     if not hole.any():
         return
     hole = _max_filter(hole, COVERED_GAP) & ~changed  # out to the changed pixels again
-    w, h = ctx.image_size
-    ids = _bg.render(ctx.base, ctx.camera, w, h, line_px=0.0).ids
+    ids = base_ids()
     colours = {c.colour for c in ctx.step.components}
     same = [int(i) for i in np.unique(ids[hole]) if i >= 0 and ctx.base.colour(int(i)) in colours]
     if same:
@@ -265,6 +268,7 @@ def fill_enclosed(
     picture: np.ndarray,
     ctx: StepContext,
     picture_before: np.ndarray | None,
+    base_ids: Callable[[], np.ndarray] | None = None,
 ) -> None:
     """Mark as changed (in place) the page-coloured regions of the picture that the page around
     the drawing does not reach (:func:`_enclosed_page`), where the base shape leaves the page
@@ -272,13 +276,17 @@ def fill_enclosed(
     page only by their outlines and shading, which another renderer may draw lighter than ours
     (then only the outlines read as changed). A region already enclosed in the previous picture
     (``picture_before``, (3, H, W) seen with this step's camera: a gap under an arch) is left
-    alone."""
+    alone. ``base_ids``: the base's instance ids as :func:`fill_covered` takes them (None:
+    drawn here)."""
     w, h = ctx.image_size
     hole = _enclosed_page(picture)
     if not hole.any():
         return
     if len(ctx.base):
-        hole &= _bg.render(ctx.base, ctx.camera, w, h, line_px=0.0).ids < 0
+        if base_ids is None:
+            hole &= _bg.render(ctx.base, ctx.camera, w, h, line_px=0.0).ids < 0
+        else:
+            hole &= base_ids() < 0
     if picture_before is not None:
         hole &= ~_enclosed_page(picture_before.transpose(1, 2, 0))
     grown = _reconstruct(change > CHANGE_THRESHOLD, hole)
@@ -1021,20 +1029,17 @@ def _explained(
     asm = _with_parts(ctx, preds)
     r = _bg.render(asm, ctx.camera, w, h)
     new = r.ids >= n0
-    outside = new & ~mask
-    if picture is not None and QUIET_LEVEL > 0 and outside.any():
-        # a part drawn in the picture's own colour where the picture did not change (in front
-        # of a part of its colour) is no evidence against it: out of the IoU
-        off = np.abs(picture[outside] - (r.rgb[outside] / 255.0 * tone[0] + tone[1])).max(axis=1)
-        quiet = np.zeros_like(new)
-        quiet[outside] = off < QUIET_LEVEL
-        union = int((new | mask).sum() - quiet.sum())
-    else:
-        union = int((new | mask).sum())
-    score = float((new & mask).sum() / union) if union else 0.0
+    union = int((new | mask).sum())
+    off = None  # per pixel the parts draw: the largest channel difference from the picture
     if picture is not None and new.any():
-        rendered = r.rgb[new] / 255.0 * tone[0] + tone[1]
-        score -= COLOUR_WEIGHT * float(np.abs(picture[new] - rendered).max(axis=1).mean())
+        off = np.abs(picture[new] - (r.rgb[new] / 255.0 * tone[0] + tone[1])).max(axis=1)
+        if QUIET_LEVEL > 0:
+            # a part drawn in the picture's own colour where the picture did not change (in
+            # front of a part of its colour) is no evidence against it: out of the IoU
+            union -= int(((off < QUIET_LEVEL) & ~mask[new]).sum())
+    score = float((new & mask).sum() / union) if union else 0.0
+    if off is not None:
+        score -= COLOUR_WEIGHT * float(off.mean())
     if picture_edges is not None and union and EDGE_WEIGHT:
         unseen, undrawn = _edge_disagreement(ctx, asm, r.rgb, new, mask, picture_edges)
         score -= (EDGE_WEIGHT * undrawn + SHOWN_EDGE_WEIGHT * unseen) / union
