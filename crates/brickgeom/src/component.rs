@@ -50,9 +50,13 @@ pub struct Component {
     pub studs: Vec<Lattice>,
     /// Anti-stud points of the union that are not blocked by its own bricks, sorted.
     pub anti_studs: Vec<Lattice>,
-    /// Yaw symmetry order (1, 2 or 4): how many quarter turns map the geometry onto itself up to
-    /// a translation.
+    /// Yaw symmetry order (1, 2 or 4): how many quarter turns map the component onto itself up
+    /// to a translation: its geometry and, for a submodule, every brick's part, colour and
+    /// placement (two bricks of different colours swapped by a turn are a different look).
     pub symmetry: u8,
+    /// The same count for the geometry alone (voxels, connection points, side studs), blind to
+    /// which brick is where: what the generator's placement search needs.
+    pub shape_symmetry: u8,
     /// Indices into `bricks` of the topmost bricks (highest top face); their keypoints are the
     /// component's keypoint candidates.
     pub topmost: Vec<usize>,
@@ -86,6 +90,7 @@ impl Component {
         )?;
         c.is_submodule = false;
         c.symmetry = def.symmetry;
+        c.shape_symmetry = def.symmetry;
         Ok(c)
     }
 
@@ -170,10 +175,12 @@ impl Component {
             studs,
             anti_studs,
             symmetry: 1,
+            shape_symmetry: 1,
             topmost,
             side_studs,
         };
-        c.symmetry = c.detect_symmetry();
+        c.shape_symmetry = c.detect_symmetry(false);
+        c.symmetry = c.detect_symmetry(true);
         Ok(c)
     }
 
@@ -203,9 +210,48 @@ impl Component {
         s
     }
 
+    /// The bricks placed by `pose`, each as its part, colour and placed geometry (voxels,
+    /// studs, anti-studs, side studs), sorted: the component brick by brick, whatever order its
+    /// bricks were listed in.
+    #[allow(clippy::type_complexity)]
+    fn placed_bricks(
+        &self,
+        pose: &Pose,
+    ) -> Vec<(&'static str, i32, Vec<Lattice>, Vec<Lattice>, Vec<Lattice>, Vec<[i32; 3]>)> {
+        let mut out: Vec<_> = self
+            .bricks
+            .iter()
+            .map(|b| {
+                let at = pose.compose(&b.pose);
+                let def = part(b.part).expect("bricks are library parts");
+                let sorted = |mut v: Vec<Lattice>| {
+                    v.sort_unstable();
+                    v
+                };
+                let mut side: Vec<[i32; 3]> = def
+                    .side_stud_points
+                    .iter()
+                    .map(|&p| round_ldu(at.apply_ldu(p)))
+                    .collect();
+                side.sort_unstable();
+                (
+                    b.part,
+                    b.colour,
+                    sorted(def.voxels.iter().map(|&v| at.apply_cell(v)).collect()),
+                    sorted(def.studs.iter().map(|&p| at.apply_point(p)).collect()),
+                    sorted(def.anti_studs.iter().map(|&p| at.apply_point(p)).collect()),
+                    side,
+                )
+            })
+            .collect();
+        out.sort_unstable();
+        out
+    }
+
     /// Number of quarter turns (out of 4) under which the geometry (voxels, connection points
-    /// and side studs) equals itself up to a translation.
-    fn detect_symmetry(&self) -> u8 {
+    /// and side studs) equals itself up to a translation; with `bricks`, every brick too (part,
+    /// colour, placement: [`Component::placed_bricks`]).
+    fn detect_symmetry(&self, bricks: bool) -> u8 {
         // each quarter turn moved so that its lowest voxel corner is the origin
         let at = |yaw: u8| {
             let (v, _, _) = self.placed(&Pose::new(yaw, [0, 0, 0]));
@@ -213,18 +259,28 @@ impl Component {
                 [m[0].min(c[0]), m[1].min(c[1]), m[2].min(c[2])]
             });
             let pose = Pose::new(yaw, [-m[0], -m[1], -m[2]]);
-            (self.placed(&pose), self.placed_side_studs(&pose))
+            (
+                self.placed(&pose),
+                self.placed_side_studs(&pose),
+                if bricks {
+                    self.placed_bricks(&pose)
+                } else {
+                    Vec::new()
+                },
+            )
         };
         let base = at(0);
         (0..4u8).filter(|&yaw| at(yaw) == base).count() as u8
     }
 
     /// Two poses are the same placement when they produce identical geometry: voxels,
-    /// connection points and side studs (pose equality modulo the component's symmetry).
+    /// connection points and side studs, and for a submodule every brick (part, colour,
+    /// placement) where a brick was (pose equality modulo the component's symmetry).
     pub fn same_placement(&self, a: &Pose, b: &Pose) -> bool {
         a == b
             || (self.placed(a) == self.placed(b)
-                && self.placed_side_studs(a) == self.placed_side_studs(b))
+                && self.placed_side_studs(a) == self.placed_side_studs(b)
+                && (!self.is_submodule || self.placed_bricks(a) == self.placed_bricks(b)))
     }
 
     /// The keypoints (LDU, y up, component frame) of the topmost bricks.

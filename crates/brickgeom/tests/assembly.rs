@@ -277,3 +277,41 @@ fn remove_unknown_instance_is_an_error() {
         BrickGeomError::NoSuchInstance { id: 3 }
     );
 }
+
+#[test]
+fn a_turn_that_swaps_two_colours_is_a_different_placement() {
+    // two 1x1 plates side by side: the geometry has a half-turn symmetry, but with two colours
+    // the half turn swaps them (a different picture), so the submodule has none
+    let pair = |a: i32, b: i32| {
+        Component::from_bricks(
+            "pair".into(),
+            vec![
+                brickgeom::component::Brick {
+                    part: "3024",
+                    pose: Pose::new(0, [0, 1, 0]),
+                    colour: a,
+                },
+                brickgeom::component::Brick {
+                    part: "3024",
+                    pose: Pose::new(0, [1, 1, 0]),
+                    colour: b,
+                },
+            ],
+        )
+        .unwrap()
+    };
+    let two = pair(4, 1);
+    assert_eq!(two.shape_symmetry, 2, "the geometry alone");
+    assert_eq!(two.symmetry, 1, "the colours break it");
+    // the half turn about the pair's centre maps the voxels onto themselves
+    let a = Pose::new(0, [0, 0, 0]);
+    let b = Pose::new(2, [1, 0, 0]);
+    assert_eq!(two.placed(&a), two.placed(&b));
+    assert!(!two.same_placement(&a, &b));
+    let one = pair(4, 4);
+    assert_eq!((one.shape_symmetry, one.symmetry), (2, 2));
+    assert!(one.same_placement(&a, &b));
+    // and a primitive keeps its part's own symmetry for both
+    let plate = component("3023");
+    assert_eq!((plate.shape_symmetry, plate.symmetry), (2, 2));
+}

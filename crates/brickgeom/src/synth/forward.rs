@@ -155,7 +155,7 @@ impl<'a> Forward<'a> {
     fn place(&mut self, comp: &Component, target: (i32, i32), region: &Region) -> Option<Pose> {
         let mut yaws = [0u8, 1, 2, 3];
         self.rng.shuffle(&mut yaws);
-        let tries = 1 + self.rng.below(comp.symmetry.max(1) as usize).min(3);
+        let tries = 1 + self.rng.below(comp.shape_symmetry.max(1) as usize).min(3);
         let ground = if self.asm.is_empty() || self.rng.f64() < 0.25 {
             GroundSearch::Region {
                 x0: region.x0,
