@@ -217,7 +217,14 @@ impl Component {
     fn placed_bricks(
         &self,
         pose: &Pose,
-    ) -> Vec<(&'static str, i32, Vec<Lattice>, Vec<Lattice>, Vec<Lattice>, Vec<[i32; 3]>)> {
+    ) -> Vec<(
+        &'static str,
+        i32,
+        Vec<Lattice>,
+        Vec<Lattice>,
+        Vec<Lattice>,
+        Vec<[i32; 3]>,
+    )> {
         let mut out: Vec<_> = self
             .bricks
             .iter()
