@@ -802,3 +802,55 @@ def test_a_step_lifted_above_the_old_bar_by_quiet_pixels_is_still_revisited(
     assert _main_step(study / "manual_00980015", 7) == (4, 4)
     monkeypatch.setattr(synthesis, "WELL_EXPLAINED", 0.95)
     assert _main_step(study / "manual_00980015", 7) == (2, 4)
+
+
+@pytest.fixture(scope="module")
+def study21(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Two manuals of the study set S21 (seed 990000; docs/results.md) drawn again."""
+    from conftest import generate_manuals
+
+    out = tmp_path_factory.mktemp("study21")
+    for seed in (990002, 990006, 990018):
+        generate_manuals(out, 1, seed)
+    return out
+
+
+def test_a_submodule_whose_turn_swaps_two_colours_is_placed_the_right_way_round(study21: Path):
+    """S21 manual 6 step 8: a submodule of two 1x1 plates of different colours side by side. A
+    half turn maps its geometry onto itself but swaps the colours: it has no symmetry, the two
+    turns are different placements, and stage 2 tries both and takes the one drawn."""
+    from mepnet.manual import answers_of
+
+    m = load_manual(study21 / "manual_00990006")
+    ans = answers_of(m)
+    comps = ans.components(m)
+    (inst,) = [i for i in ans.main.truth(7).placed() if comps[i.component].is_submodule]
+    sub = comps[inst.component]
+    assert sub.symmetry == 1
+    # half turned and a cell back, it fills the same cells (the turn the geometry allows)
+    assert (inst.yaw, tuple(inst.t)) == (2, (2, 8, 4))
+    assert not sub.same_placement(inst.yaw, inst.t, 0, (2, 8, 3))
+    assert _main_step(study21 / "manual_00990006", 8) == (2, 2)
+
+
+def test_a_hidden_part_is_placed_again_where_the_picture_is_unexplained(
+    study21: Path, monkeypatch: pytest.MonkeyPatch
+):
+    """S21 manual 18 step 2: a dark 1x2 slope in front of a dark blue brick changes the picture
+    little (outside the change mask) but draws its outline; the greedy hid it behind the model
+    (0.95). Placed again where what the step's parts leave unexplained is (``RELOCATE``), ranked
+    by how much of it each placement shows, it explains the picture (0.975)."""
+    import mepnet.stage2.synthesis as synthesis
+
+    assert _main_step(study21 / "manual_00990018", 2) == (5, 5)
+    monkeypatch.setattr(synthesis, "RELOCATE", False)
+    assert _main_step(study21 / "manual_00990018", 2) == (4, 5)
+
+
+def test_a_relocated_part_is_then_shifted_and_turned_with_the_others(study21: Path):
+    """S21 manual 2 step 2: two 1x2 bricks side by side filling a 2x2 square. Relocating one of
+    them (``RELOCATE``) explains the picture a little better than the greedy (0.92), but with
+    both turned the wrong way round; the structural moves after it (``STEP_TURNS``) turn them
+    together (0.95, the truth). With the relocation last, after those moves, the step ended
+    at the relocated solution."""
+    assert _main_step(study21 / "manual_00990002", 2) == (2, 2)

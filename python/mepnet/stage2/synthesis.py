@@ -748,6 +748,21 @@ def _solve(
         alt_preds, alt_taken, _, alt_score = attempt(prefix)
         if alt_score > score + min(COLUMN_MARGIN, COLUMN_SHARE * (1.0 - score)):
             preds, score, taken = alt_preds, alt_score, alt_taken
+    # a part the picture shows little or nothing of, while changed pixels stay unexplained:
+    # placed again where those pixels are (a part mostly hidden behind the step's others that
+    # no detection marked is put anywhere it hides; no shift or turn of it reaches its place);
+    # before the shifts and turns, which then polish what it moved
+    relocations = (
+        _relocations(ctx, types, taken, mask, picture_edges, time_limit_s, wide, deadline)
+        if RELOCATE and score < CLOSE and len(taken) == total
+        else []
+    )
+    for prefix in relocations:
+        if score >= CLOSE or _clock() >= deadline:
+            break
+        alt_preds, alt_taken, _, alt_score = attempt(prefix)
+        if alt_score > score + 1e-6:
+            preds, score, taken = alt_preds, alt_score, alt_taken
     # the step's parts moved together: placed one at a time, each fits what the ones before it
     # left, so a row of parts can end up a cell off as a whole (every part a little off the
     # picture, none better alone)
@@ -918,6 +933,86 @@ COLUMN_MARGIN = 0.03
 COLUMN_SHARE = 0.5
 
 
+#: Whether a step explained worse than :data:`CLOSE` has its least seen parts placed again
+#: where its changed pixels are left unexplained (:func:`_relocations`).
+RELOCATE = True
+#: ... when at least this many changed pixels are drawn by none of the step's parts ...
+RELOCATE_PX = 20
+#: ... of the step's parts showing less than this share of themselves ...
+RELOCATE_SEEN = 0.5
+#: ... the parts tried, least seen first; the placements tried for each: the best by the IoU
+#: with those pixels, and as many showing most of them (of :data:`RELOCATE_RANKED` by IoU).
+RELOCATE_PARTS = 2
+RELOCATE_CHOICES = 3
+RELOCATE_RANKED = 16
+
+
+def _relocations(
+    ctx: StepContext,
+    types: list[SynthesisType],
+    taken: list[First],
+    mask: np.ndarray,
+    picture_edges: np.ndarray | None,
+    time_limit_s: float,
+    wide: bool,
+    deadline: float,
+) -> list[list[First]]:
+    """The step's decisions with one of its least seen parts (fewest pixels drawn in the shape
+    with all of them) taken out and placed last where it best explains what the step's parts
+    leave unexplained, with its own pixels: the changed pixels (``mask``) none of them draws
+    and the picture's edges (``picture_edges``) the shape draws nowhere
+    (:func:`_edge_maps`: a new part in front of one of its own colour changes the picture
+    little but draws its outline); ``abys_ranked`` on the shape without it. None when fewer
+    than :data:`RELOCATE_PX` such pixels are left."""
+    w, h = ctx.image_size
+    n0 = len(ctx.base)
+    shape = ctx.base.copy()
+    for i, yaw, tr in taken:
+        shape.add(types[i].component, yaw, tr, ctx.colour(types[i].entry))
+    r = _bg.render(shape, ctx.camera, w, h)
+    ids = r.ids
+    unexplained = mask & (ids < n0)
+    if picture_edges is not None:
+        box, _, undrawn = _edge_maps(ctx, shape, r.rgb, ids >= n0, mask, picture_edges)
+        unexplained[box] |= undrawn
+    if int(unexplained.sum()) < RELOCATE_PX:
+        return []
+    seen = np.bincount(ids[ids >= n0] - n0, minlength=len(taken))
+    out: list[list[First]] = []
+    for k in [int(k) for k in np.argsort(seen, kind="stable")[:RELOCATE_PARTS]]:
+        i = taken[k][0]
+        alone = _draw_alone(types[i].component, taken[k][1], taken[k][2], 0, ctx.camera, w, h)
+        if seen[k] >= RELOCATE_SEEN * int(alone.own.sum()):
+            continue  # the picture shows it: its place is evidenced
+        rest = [d for j, d in enumerate(taken) if j != k]
+        without = ctx.base.copy()
+        for j, yaw, tr in rest:
+            without.add(types[j].component, yaw, tr, 0)
+        limit = min(time_limit_s, max(deadline - _clock(), MIN_SEARCH_S))
+        comp = types[i].component
+        target = unexplained | (ids == n0 + k)
+        ranked, _ = _bg.abys_ranked(
+            without, ctx.camera, w, h, comp, target, RELOCATE_RANKED, limit, wide_ground=wide
+        )
+        # the best by IoU, and the best by how many of those pixels each shows: the IoU prefers
+        # a part hidden but for a sliver over one whose face the picture draws in the colour of
+        # the part behind it (unchanged, so outside the mask, but no evidence against it)
+        depth = _bg.render(without, ctx.camera, w, h, line_px=0.0).depth
+        shown = []
+        for yaw, tr, iou in ranked:
+            f = (i, int(yaw), (int(tr[0]), int(tr[1]), int(tr[2])))
+            if f == taken[k]:
+                continue
+            d = _draw_alone(comp, f[1], f[2], 0, ctx.camera, w, h)
+            seen_px = d.own & (d.depth < depth[d.box])
+            shown.append((int((seen_px & target[d.box]).sum()), float(iou), f))
+        by_iou = [f for _, _, f in shown[:RELOCATE_CHOICES]]
+        shown.sort(key=lambda x: (-x[0], -x[1]))
+        by_shown = [f for _, _, f in shown[:RELOCATE_CHOICES] if f not in by_iou]
+        out.extend([*rest, f] for f in by_iou + by_shown)
+    return out
+
+
 def _columns(
     ctx: StepContext,
     types: list[SynthesisType],
@@ -989,6 +1084,20 @@ def _edge_disagreement(
     (H, W, 3) uint8 render) within a pixel, counted within 2 pixels of the parts and where the
     picture changed (``mask``): a renderer shows every face's outline as a change of colour,
     and may or may not draw lines. Returns the two counts (shown, not drawn)."""
+    _, unseen, undrawn = _edge_maps(ctx, shape, lined, new, mask, picture_edges)
+    return int(unseen.sum()), int(undrawn.sum())
+
+
+def _edge_maps(
+    ctx: StepContext,
+    shape: _bg.Assembly,
+    lined: np.ndarray,
+    new: np.ndarray,
+    mask: np.ndarray,
+    picture_edges: np.ndarray,
+) -> tuple[tuple[slice, slice], np.ndarray, np.ndarray]:
+    """:func:`_edge_disagreement`'s pixels: the box it looks in, and within it the edges shown
+    where the picture has none and the picture's edges drawn in neither drawing."""
     w, h = ctx.image_size
     near = new | mask
     rows, cols = np.nonzero(near.any(axis=1))[0], np.nonzero(near.any(axis=0))[0]
@@ -1002,7 +1111,7 @@ def _edge_disagreement(
     seen = picture_edges[box] & near
     unseen = drawn & ~_max_filter(seen, 1)  # shown, the picture shows none
     undrawn = seen & ~_max_filter(drawn | edge_map(lined[box] / 255.0), 1)  # in neither drawing
-    return int(unseen.sum()), int(undrawn.sum())
+    return box, unseen, undrawn
 
 
 #: A step's part drawn where the picture did not change and within this much (largest channel,
