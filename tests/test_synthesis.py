@@ -52,8 +52,9 @@ def stack(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 def _earlier_revisits(monkeypatch: pytest.MonkeyPatch, choices: int | None = None) -> None:
     """Stage 2's revisits as they were before stop 39 (no pairs, the first decision revisited
-    like the others, forced decisions without choices; ``choices``: at every decision), so
-    that a test shows what the mechanism it is about buys on its own."""
+    like the others, forced decisions without choices; ``choices``: at every decision; and no
+    relocation of hidden parts, stop 44), so that a test shows what the mechanism it is about
+    buys on its own."""
     import mepnet.stage2.synthesis as synthesis
 
     if choices is not None:
@@ -61,6 +62,7 @@ def _earlier_revisits(monkeypatch: pytest.MonkeyPatch, choices: int | None = Non
     monkeypatch.setattr(synthesis, "LEAD_CHOICES", synthesis.FIRST_CHOICES)
     monkeypatch.setattr(synthesis, "PAIRS", False)
     monkeypatch.setattr(synthesis, "REVISIT_FORCED", False)
+    monkeypatch.setattr(synthesis, "RELOCATE", False)
 
 
 def test_a_stack_of_equal_parts_is_solved_as_a_whole(stack: Path, monkeypatch: pytest.MonkeyPatch):
@@ -155,6 +157,12 @@ def test_a_stack_is_found_when_its_bottom_is_never_a_first_choice(
     monkeypatch.setattr(synthesis, "COLUMN_SHARE", 1.0)
     unsure = run_manual(m, make_predictor("synthesis"), teacher_forced=True)
     assert step_matches(unsure, unsure.main.steps[-1]) < 2
+    # the stack's bottom, hidden behind the brick that mimics its top, is also found by placing
+    # the least seen part again where the picture is left unexplained
+    monkeypatch.setattr(synthesis, "RELOCATE", True)
+    relocated = run_manual(m, make_predictor("synthesis"), teacher_forced=True)
+    assert step_matches(relocated, relocated.main.steps[-1]) == 2
+    monkeypatch.setattr(synthesis, "RELOCATE", False)
     monkeypatch.setattr(synthesis, "COLUMNS", False)
     greedy = run_manual(m, make_predictor("synthesis"), teacher_forced=True)
     assert step_matches(greedy, greedy.main.steps[-1]) < 2
