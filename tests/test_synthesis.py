@@ -529,15 +529,20 @@ def _main_step(manual_dir: Path, k: int) -> tuple[int, int]:
     return hits, len(true)
 
 
+def _drawn_again(factory: pytest.TempPathFactory, name: str, seeds: tuple[int, ...]) -> Path:
+    """The generated manuals of ``seeds``, one each, in a fresh folder ``name``."""
+    from conftest import generate_manuals
+
+    out = factory.mktemp(name)
+    for seed in seeds:
+        generate_manuals(out, 1, seed)
+    return out
+
+
 @pytest.fixture(scope="module")
 def fresh(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """Three manuals of the never-tuned set F20 (seed 930000; docs/results.md) drawn again."""
-    from conftest import generate_manuals
-
-    out = tmp_path_factory.mktemp("fresh")
-    for seed in (930011, 930018, 930019):
-        generate_manuals(out, 1, seed)
-    return out
+    return _drawn_again(tmp_path_factory, "fresh", (930011, 930018, 930019))
 
 
 def test_a_decision_forced_first_is_still_revisited(fresh: Path):
@@ -690,13 +695,8 @@ def test_a_part_turned_about_itself_is_tried(tmp_path: Path, monkeypatch: pytest
 
 @pytest.fixture(scope="module")
 def study(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """Two manuals of the study set S20 (seed 980000; docs/results.md) drawn again."""
-    from conftest import generate_manuals
-
-    out = tmp_path_factory.mktemp("study")
-    for seed in (980004, 980007, 980013, 980015, 980019):
-        generate_manuals(out, 1, seed)
-    return out
+    """Five manuals of the study set S20 (seed 980000; docs/results.md) drawn again."""
+    return _drawn_again(tmp_path_factory, "study", (980004, 980007, 980013, 980015, 980019))
 
 
 def test_a_column_beside_other_parts_on_a_first_step_is_found(
@@ -814,13 +814,8 @@ def test_a_step_lifted_above_the_old_bar_by_quiet_pixels_is_still_revisited(
 
 @pytest.fixture(scope="module")
 def study21(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """Two manuals of the study set S21 (seed 990000; docs/results.md) drawn again."""
-    from conftest import generate_manuals
-
-    out = tmp_path_factory.mktemp("study21")
-    for seed in (990002, 990006, 990018):
-        generate_manuals(out, 1, seed)
-    return out
+    """Three manuals of the study set S21 (seed 990000; docs/results.md) drawn again."""
+    return _drawn_again(tmp_path_factory, "study21", (990002, 990006, 990018))
 
 
 def test_a_submodule_whose_turn_swaps_two_colours_is_placed_the_right_way_round(study21: Path):
