@@ -65,6 +65,17 @@ pub struct Component {
     pub side_studs: Vec<[i32; 3]>,
 }
 
+/// A brick as [`Component::placed_bricks`] describes it: part, colour, and its voxels, studs,
+/// anti-studs and side studs, each sorted.
+type PlacedBrick = (
+    &'static str,
+    i32,
+    Vec<Lattice>,
+    Vec<Lattice>,
+    Vec<Lattice>,
+    Vec<Lattice>,
+);
+
 /// The four cells around a connection point, on the layer `y` (the layer above a stud is the
 /// point's y; the layer below an anti-stud is y - 1).
 pub(crate) fn cells_around(p: Lattice, layer: i32) -> [Lattice; 4] {
@@ -213,41 +224,29 @@ impl Component {
     /// The bricks placed by `pose`, each as its part, colour and placed geometry (voxels,
     /// studs, anti-studs, side studs), sorted: the component brick by brick, whatever order its
     /// bricks were listed in.
-    #[allow(clippy::type_complexity)]
-    fn placed_bricks(
-        &self,
-        pose: &Pose,
-    ) -> Vec<(
-        &'static str,
-        i32,
-        Vec<Lattice>,
-        Vec<Lattice>,
-        Vec<Lattice>,
-        Vec<[i32; 3]>,
-    )> {
-        let mut out: Vec<_> = self
+    fn placed_bricks(&self, pose: &Pose) -> Vec<PlacedBrick> {
+        let sorted = |mut v: Vec<Lattice>| {
+            v.sort_unstable();
+            v
+        };
+        let mut out: Vec<PlacedBrick> = self
             .bricks
             .iter()
             .map(|b| {
                 let at = pose.compose(&b.pose);
                 let def = part(b.part).expect("bricks are library parts");
-                let sorted = |mut v: Vec<Lattice>| {
-                    v.sort_unstable();
-                    v
-                };
-                let mut side: Vec<[i32; 3]> = def
-                    .side_stud_points
-                    .iter()
-                    .map(|&p| round_ldu(at.apply_ldu(p)))
-                    .collect();
-                side.sort_unstable();
                 (
                     b.part,
                     b.colour,
                     sorted(def.voxels.iter().map(|&v| at.apply_cell(v)).collect()),
                     sorted(def.studs.iter().map(|&p| at.apply_point(p)).collect()),
                     sorted(def.anti_studs.iter().map(|&p| at.apply_point(p)).collect()),
-                    side,
+                    sorted(
+                        def.side_stud_points
+                            .iter()
+                            .map(|&p| round_ldu(at.apply_ldu(p)))
+                            .collect(),
+                    ),
                 )
             })
             .collect();
@@ -255,9 +254,20 @@ impl Component {
         out
     }
 
-    /// Number of quarter turns (out of 4) under which the geometry (voxels, connection points
-    /// and side studs) equals itself up to a translation; with `bricks`, every brick too (part,
-    /// colour, placement: [`Component::placed_bricks`]).
+    /// Whether the component looks the same at two poses: its geometry (voxels, connection
+    /// points, side studs), or with `bricks` every brick's part, colour and placement
+    /// ([`Component::placed_bricks`], which implies the geometry).
+    fn looks_same(&self, a: &Pose, b: &Pose, bricks: bool) -> bool {
+        if bricks {
+            self.placed_bricks(a) == self.placed_bricks(b)
+        } else {
+            self.placed(a) == self.placed(b)
+                && self.placed_side_studs(a) == self.placed_side_studs(b)
+        }
+    }
+
+    /// Number of quarter turns (out of 4) under which the component looks the same up to a
+    /// translation ([`Component::looks_same`]).
     fn detect_symmetry(&self, bricks: bool) -> u8 {
         // each quarter turn moved so that its lowest voxel corner is the origin
         let at = |yaw: u8| {
@@ -265,29 +275,19 @@ impl Component {
             let m = v.iter().fold([i32::MAX; 3], |m, c| {
                 [m[0].min(c[0]), m[1].min(c[1]), m[2].min(c[2])]
             });
-            let pose = Pose::new(yaw, [-m[0], -m[1], -m[2]]);
-            (
-                self.placed(&pose),
-                self.placed_side_studs(&pose),
-                if bricks {
-                    self.placed_bricks(&pose)
-                } else {
-                    Vec::new()
-                },
-            )
+            Pose::new(yaw, [-m[0], -m[1], -m[2]])
         };
         let base = at(0);
-        (0..4u8).filter(|&yaw| at(yaw) == base).count() as u8
+        (0..4u8)
+            .filter(|&yaw| self.looks_same(&base, &at(yaw), bricks))
+            .count() as u8
     }
 
     /// Two poses are the same placement when they produce identical geometry: voxels,
     /// connection points and side studs, and for a submodule every brick (part, colour,
     /// placement) where a brick was (pose equality modulo the component's symmetry).
     pub fn same_placement(&self, a: &Pose, b: &Pose) -> bool {
-        a == b
-            || (self.placed(a) == self.placed(b)
-                && self.placed_side_studs(a) == self.placed_side_studs(b)
-                && (!self.is_submodule || self.placed_bricks(a) == self.placed_bricks(b)))
+        a == b || self.looks_same(a, b, self.is_submodule)
     }
 
     /// The keypoints (LDU, y up, component frame) of the topmost bricks.

@@ -4,7 +4,6 @@
 use std::collections::BTreeSet;
 
 use brickgeom::colours::ColourTable;
-use brickgeom::component::Brick;
 use brickgeom::scene::MeshSource;
 use brickgeom::synth::{generate, render_build, validate_build, Build, ComponentRef, SynthConfig};
 use brickgeom::Assembly;
@@ -164,19 +163,7 @@ fn steps_rebuild_the_final_shape_and_ids_match_masks() {
 /// A submodule's shape (its component's bricks) is exactly what its own manual's instances
 /// place, in order: each step of a plan can rebuild it.
 fn assert_submodule_steps_add_its_bricks(sub: &brickgeom::synth::SynthSubmodule, seed: u64) {
-    let placed: Vec<Brick> = sub
-        .build
-        .instances
-        .iter()
-        .map(|i| Brick {
-            part: match i.cref {
-                ComponentRef::Part(p) => p,
-                ComponentRef::Submodule(_) => panic!("a submodule inside a submodule"),
-            },
-            pose: i.pose,
-            colour: i.colour,
-        })
-        .collect();
+    let placed = sub.build.assembly().unwrap().bricks();
     assert_eq!(
         sub.component.bricks, placed,
         "seed {seed}: {}'s bricks differ from its instances",

@@ -199,8 +199,7 @@ def step_change(ctx: StepContext, picture: np.ndarray) -> tuple[np.ndarray, np.n
             change, np.where(trusted, previous_change(image, picture_before), 1.0), out=change
         )
     change = tolerate_lines(change, outline | drawn_edges(state))
-    # the base's instance ids, drawn once if either fill needs them
-    base_ids = functools.cache(lambda: _bg.render(ctx.base, ctx.camera, w, h, line_px=0.0).ids)
+    base_ids = _base_ids(ctx)  # drawn once if either fill needs them
     fill_enclosed(change, picture, ctx, None if before is None else before[0], base_ids)
     if FILL_COVERED:
         fill_covered(change, ctx, base_ids)
@@ -211,6 +210,13 @@ def step_change(ctx: StepContext, picture: np.ndarray) -> tuple[np.ndarray, np.n
 FILL_COVERED = True
 #: ... closing gaps of up to twice this many pixels in the changed pixels' ring.
 COVERED_GAP = 2
+
+
+def _base_ids(ctx: StepContext) -> Callable[[], np.ndarray]:
+    """The base's instance id per pixel (the step's camera, no lines), drawn on the first call
+    only."""
+    w, h = ctx.image_size
+    return functools.cache(lambda: _bg.render(ctx.base, ctx.camera, w, h, line_px=0.0).ids)
 
 
 def fill_covered(change: np.ndarray, ctx: StepContext, base_ids: Callable[[], np.ndarray]) -> None:
@@ -278,15 +284,11 @@ def fill_enclosed(
     (``picture_before``, (3, H, W) seen with this step's camera: a gap under an arch) is left
     alone. ``base_ids``: the base's instance ids as :func:`fill_covered` takes them (None:
     drawn here)."""
-    w, h = ctx.image_size
     hole = _enclosed_page(picture)
     if not hole.any():
         return
     if len(ctx.base):
-        if base_ids is None:
-            hole &= _bg.render(ctx.base, ctx.camera, w, h, line_px=0.0).ids < 0
-        else:
-            hole &= base_ids() < 0
+        hole &= (base_ids or _base_ids(ctx))() < 0
     if picture_before is not None:
         hole &= ~_enclosed_page(picture_before.transpose(1, 2, 0))
     grown = _reconstruct(change > CHANGE_THRESHOLD, hole)
@@ -980,8 +982,9 @@ def _relocations(
     seen = np.bincount(ids[ids >= n0] - n0, minlength=len(taken))
     out: list[list[First]] = []
     for k in [int(k) for k in np.argsort(seen, kind="stable")[:RELOCATE_PARTS]]:
-        i = taken[k][0]
-        alone = _draw_alone(types[i].component, taken[k][1], taken[k][2], 0, ctx.camera, w, h)
+        i, yaw_k, t_k = taken[k]
+        comp = types[i].component
+        alone = _draw_alone(comp, yaw_k, t_k, 0, ctx.camera, w, h)
         if seen[k] >= RELOCATE_SEEN * int(alone.own.sum()):
             continue  # the picture shows it: its place is evidenced
         rest = [d for j, d in enumerate(taken) if j != k]
@@ -989,7 +992,6 @@ def _relocations(
         for j, yaw, tr in rest:
             without.add(types[j].component, yaw, tr, 0)
         limit = min(time_limit_s, max(deadline - _clock(), MIN_SEARCH_S))
-        comp = types[i].component
         target = unexplained | (ids == n0 + k)
         ranked, _ = _bg.abys_ranked(
             without, ctx.camera, w, h, comp, target, RELOCATE_RANKED, limit, wide_ground=wide
