@@ -857,3 +857,69 @@ def test_a_relocated_part_is_then_shifted_and_turned_with_the_others(study21: Pa
     together (0.95, the truth). With the relocation last, after those moves, the step ended
     at the relocated solution."""
     assert _main_step(study21 / "manual_00990002", 2) == (2, 2)
+
+
+def _shadow(path: Path, ids: np.ndarray, own: int, r: int = 6) -> tuple[slice, slice]:
+    """Darken (to 0.6) a (2r+1)-pixel square of the picture at ``path`` that lies, with a
+    margin, on instance ``own`` alone (``ids``: the step's instance map, 0 the page), as a cast
+    shadow would; returns the square."""
+    from PIL import Image
+
+    inside = ids == own
+    h, w = ids.shape
+    for y in range(r + 3, h - r - 3):
+        for x in range(r + 3, w - r - 3):
+            if inside[y - r - 3 : y + r + 4, x - r - 3 : x + r + 4].all():
+                box = (slice(y - r, y + r + 1), slice(x - r, x + r + 1))
+                rgb = np.asarray(Image.open(path).convert("RGB")).astype(np.float32)
+                rgb[box] *= 0.6
+                Image.fromarray(np.rint(rgb).astype(np.uint8)).save(path)
+                return box
+    raise AssertionError(f"no room for a shadow on instance {own} in {path}")
+
+
+@pytest.mark.parametrize("part_colour", [2, 72])
+def test_a_cast_shadow_on_the_base_is_no_change_unless_a_new_part_could_be_there(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, part_colour: int
+):
+    """A renderer that casts shadows (POV-Ray) darkens the base where a new part's shadow
+    falls: read as a change, it drew parts into the shadow. When the previous picture shows
+    shadows on the base, the base drawn darker with its hue kept is no change, unless one of
+    the step's parts could be what the picture shows there (a dark grey plate over a light
+    grey one looks just like a shadow on it)."""
+    import mepnet.stage2.synthesis as synthesis
+    from mepnet.manual import answers_of
+    from mepnet.stage2 import StepContext
+    from mepnet.stage2.base import EarlierStep
+    from mepnet.stage2.synthesis import CHANGE_THRESHOLD, step_change, step_picture
+    from PIL import Image
+
+    text = f"""0 a plate on a plate
+1 71 0 -8 0 1 0 0 0 1 0 0 0 1 3020.dat
+0 STEP
+1 {part_colour} 20 -16 10 1 0 0 0 1 0 0 0 1 3023.dat
+0 STEP
+"""
+    folder = manual_from_ldraw(text, tmp_path)
+    ids = {k: np.asarray(Image.open(folder / f"step_00{k}_ids.png")) for k in (1, 2)}
+    _shadow(folder / "step_001.png", ids[1], 1)  # the evidence: the renderer casts shadows
+    box = _shadow(folder / "step_002.png", ids[2], 1)  # a shadow on the base this step
+    m = load_manual(folder)
+    answers = answers_of(m)
+    comps = answers.components(m)
+    earlier = (EarlierStep(m.main.steps[0], 1),)
+    ctx = StepContext(
+        m.main.steps[1], answers.main.assembly_before(1, comps), comps, m.image_size, earlier
+    )
+    picture = step_picture(ctx)
+    new = ids[2] == 2
+    change, _ = step_change(ctx, picture)
+    assert (change[new] > CHANGE_THRESHOLD).mean() > 0.75  # the new part still changed
+    shadow_changed = (change[box] > CHANGE_THRESHOLD).mean()
+    if part_colour == 72:  # dark bluish grey: it could be the new plate
+        assert shadow_changed > 0.7
+    else:
+        assert shadow_changed < 0.1
+    monkeypatch.setattr(synthesis, "SHADOWS", False)
+    change, _ = step_change(ctx, picture)
+    assert (change[box] > CHANGE_THRESHOLD).mean() > 0.7

@@ -179,6 +179,19 @@ def change_map(
     the largest absolute residual over the channels. ``shades``: the state render's shade
     classes (:func:`shade_classes`) and a tone per class (:func:`shade_tones`), used instead
     of ``tone`` on the pixels of those classes (a renderer that lights faces its own way)."""
+    out = np.abs(image - expected_colours(image, state, tone, shades)).max(axis=0)
+    return np.clip(out, 0.0, 1.0).astype(np.float32)
+
+
+def expected_colours(
+    image: np.ndarray,
+    state: np.ndarray,
+    tone: np.ndarray | None = None,
+    shades: tuple[np.ndarray, dict[int, np.ndarray]] | None = None,
+) -> np.ndarray:
+    """The state render (3, H, W) mapped onto the manual ``image``'s tones as
+    :func:`change_map` compares them: per channel the tone fit's gain and bias (``tone``, else
+    :func:`fit_tone`), a shade class's own (``shades``) on that class's pixels."""
     if tone is None:
         tone = fit_tone(image, state)
     # per pixel and channel the gain and bias: the tone's, or its shade class's
@@ -190,8 +203,26 @@ def change_map(
             sel = classes == k
             gain[:, sel] = t[0][:, None]
             bias[:, sel] = t[1][:, None]
-    out = np.abs(image - (gain * state + bias)).max(axis=0)
-    return np.clip(out, 0.0, 1.0).astype(np.float32)
+    return gain * state + bias
+
+
+#: A pixel drawn darker than expected by a factor in this range, hue kept (:func:`shadowed`),
+#: may be in a cast shadow.
+SHADOW_FACTORS = (0.4, 0.85)
+#: ... the darkened colour within this much (largest channel, in [0, 1]) of the picture's.
+SHADOW_FIT = 0.06
+
+
+def shadowed(
+    image: np.ndarray, expected: np.ndarray, factors: tuple[float, float] = SHADOW_FACTORS
+) -> np.ndarray:
+    """(H, W) bool: where ``image`` ((3, H, W) in [0, 1]) shows the ``expected`` colour
+    ((3, H, W), or (3, 1, 1): one colour) darkened by a factor in ``factors``, as a cast shadow
+    darkens a face: the least-squares factor within the range and the darkened colour within
+    :data:`SHADOW_FIT` of the picture in every channel."""
+    f = (image * expected).sum(axis=0) / np.maximum((expected * expected).sum(axis=0), 1e-6)
+    fit = np.abs(image - f[None] * expected).max(axis=0) < SHADOW_FIT
+    return fit & (f >= factors[0]) & (f <= factors[1])
 
 
 #: Brightness levels the shade classes of :func:`shade_classes` are told apart at.

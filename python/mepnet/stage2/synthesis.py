@@ -38,11 +38,13 @@ from mepnet.stage2.base import Prediction, Predictor, StepContext
 from mepnet.state import (
     CHANGE_THRESHOLD,
     change_map,
+    expected_colours,
     fit_tone,
     previous_change,
     same_view,
     shade_classes,
     shade_tones,
+    shadowed,
     state_render,
     warp_previous,
 )
@@ -159,11 +161,15 @@ def tolerate_lines(change: np.ndarray, outline: np.ndarray) -> np.ndarray:
     return np.where(band, np.minimum(change, reach), change)
 
 
-def base_shades(ctx: StepContext, size: int) -> tuple[np.ndarray, dict[int, np.ndarray]] | None:
+def base_shades(
+    ctx: StepContext, size: int
+) -> tuple[tuple[np.ndarray, dict[int, np.ndarray]], float] | None:
     """The base's shade classes seen with the step's camera and their tones
     (:func:`mepnet.state.shade_tones`) learnt from the previous step's picture, which shows the
-    base and nothing else (from any view: lighting follows the camera); None on a build's first
-    step and when the previous step has no camera."""
+    base and nothing else (from any view: lighting follows the camera); and the share of the
+    base's pixels that picture draws in shadow (:func:`mepnet.state.shadowed` against those
+    tones, in patches: a line is not a shadow), the evidence that the manual's renderer casts
+    shadows. None on a build's first step and when the previous step has no camera."""
     if not ctx.earlier or len(ctx.base) == 0:
         return None
     prev = ctx.earlier[-1]
@@ -173,8 +179,24 @@ def base_shades(ctx: StepContext, size: int) -> tuple[np.ndarray, dict[int, np.n
     picture = prev.step.image().astype(np.float32).transpose(2, 0, 1) / 255.0
     if picture.shape[1:] != seen.shape[1:]:
         return None
-    tones = shade_tones(picture, seen, shade_classes(ctx.base, prev.step.camera, size))
-    return shade_classes(ctx.base, ctx.step.camera, size), tones  # type: ignore[arg-type]
+    classes = shade_classes(ctx.base, prev.step.camera, size)
+    tones = shade_tones(picture, seen, classes)
+    dark = shadowed(picture, expected_colours(picture, seen, None, (classes, tones)))
+    dark &= ~_max_filter(~dark, SHADOW_PATCH)  # patches, not lines
+    share = float(dark[classes >= 0].mean()) if (classes >= 0).any() else 0.0
+    return (shade_classes(ctx.base, ctx.step.camera, size), tones), share  # type: ignore[arg-type]
+
+
+#: Whether :func:`step_change` takes the base drawn darker, hue kept, for a cast shadow and not
+#: a change, in manuals whose previous picture shows shadows (:func:`base_shades`).
+SHADOWS = True
+#: ... shadows on more than this share of the base's pixels in the previous picture.
+SHADOW_EVIDENCE = 0.002
+#: ... counting a pixel when all within this many pixels of it are in shadow.
+SHADOW_PATCH = 1
+#: ... the range of brightness (a factor of its colour) a step's part may be drawn at, faces
+#: turned from the light and in shadow.
+PART_LIGHT = (0.3, 1.2)
 
 
 def step_change(ctx: StepContext, picture: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -189,7 +211,17 @@ def step_change(ctx: StepContext, picture: np.ndarray) -> tuple[np.ndarray, np.n
     state, outline = state_render(ctx.base, ctx.step.camera, w)  # type: ignore[arg-type]
     image = picture.transpose(2, 0, 1)
     tone = fit_tone(image, state)
-    change = change_map(image, state, tone, base_shades(ctx, w))
+    look = base_shades(ctx, w)
+    shades = None if look is None else look[0]
+    change = change_map(image, state, tone, shades)
+    if SHADOWS and look is not None and look[1] > SHADOW_EVIDENCE:
+        # the renderer casts shadows: a new part's shadow on the base is no change, unless
+        # one of the step's parts, in any light, could be what the picture shows there
+        dark = shadowed(image, expected_colours(image, state, tone, shades)) & (look[0][0] >= 0)
+        for colour in {c.colour for c in ctx.step.components}:
+            rgb = np.asarray(_bg.colour_rgb(colour), np.float32) / 255.0 * tone[0] + tone[1]
+            dark &= ~shadowed(image, rgb[:, None, None].astype(np.float32), PART_LIGHT)
+        change[dark] = 0.0
     before = previous_picture(ctx)
     if before is not None:
         # a pixel the manual's own picture of the base explains has not changed, however
