@@ -923,3 +923,15 @@ def test_a_cast_shadow_on_the_base_is_no_change_unless_a_new_part_could_be_there
     monkeypatch.setattr(synthesis, "SHADOWS", False)
     change, _ = step_change(ctx, picture)
     assert (change[box] > CHANGE_THRESHOLD).mean() > 0.7
+
+
+def test_a_single_part_a_cell_off_is_moved(tmp_path_factory: pytest.TempPathFactory, monkeypatch):
+    """S22 manual 6 step 13 (seed 1020006): one 1x2 slope whose best-ranked placements are all
+    a cell off the drawn one, so no decision's next choice reaches it; the step's parts moved
+    a cell or two (:data:`SHIFTS`) now include a step of a single part."""
+    import mepnet.stage2.synthesis as synthesis
+
+    folder = _drawn_again(tmp_path_factory, "study22", (1020006,)) / "manual_01020006"
+    assert _main_step(folder, 13) == (1, 1)
+    monkeypatch.setattr(synthesis, "SHIFT_MIN_PARTS", 2)  # as before: steps of two parts or more
+    assert _main_step(folder, 13) == (0, 1)
