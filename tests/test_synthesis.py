@@ -913,7 +913,8 @@ def test_a_cast_shadow_on_the_base_is_no_change_unless_a_new_part_could_be_there
     )
     picture = step_picture(ctx)
     new = ids[2] == 2
-    change, _ = step_change(ctx, picture)
+    change, tone = step_change(ctx, picture)
+    assert tone.shadows  # and so its parts may be drawn in shadow too (_colour_off)
     assert (change[new] > CHANGE_THRESHOLD).mean() > 0.75  # the new part still changed
     shadow_changed = (change[box] > CHANGE_THRESHOLD).mean()
     if part_colour == 72:  # dark bluish grey: it could be the new plate
@@ -921,8 +922,27 @@ def test_a_cast_shadow_on_the_base_is_no_change_unless_a_new_part_could_be_there
     else:
         assert shadow_changed < 0.1
     monkeypatch.setattr(synthesis, "SHADOWS", False)
-    change, _ = step_change(ctx, picture)
+    change, tone = step_change(ctx, picture)
     assert (change[box] > CHANGE_THRESHOLD).mean() > 0.7
+    assert not tone.shadows
+
+
+def test_a_part_drawn_in_shadow_matches_its_colour_only_where_the_renderer_casts_shadows():
+    """The colour residual of a part's pixels: a renderer that casts shadows may draw a part
+    darker with its hue kept, at a small cost; another hue, or a renderer without shadows, is
+    still a mismatch."""
+    from mepnet.stage2.synthesis import PLAIN_TONE, SHADOW_COST, Tone, _colour_off
+
+    rgb = np.array([[200, 40, 40], [200, 40, 40], [200, 40, 40]], np.uint8)
+    lit = rgb / 255.0
+    picture = np.stack([lit[0], lit[1] * 0.6, np.array([0.1, 0.1, 0.5])])  # lit, shadow, blue
+    shadowed = Tone(np.ones(3), np.zeros(3), shadows=True)
+    off = _colour_off(picture, rgb, shadowed)
+    assert off[0] < 1e-6
+    assert off[1] == pytest.approx(SHADOW_COST, abs=0.01)
+    assert off[2] > 0.3
+    plain = _colour_off(picture, rgb, PLAIN_TONE)
+    assert plain[1] > 0.25 and plain[2] > 0.3
 
 
 def test_a_single_part_a_cell_off_is_moved(tmp_path_factory: pytest.TempPathFactory, monkeypatch):

@@ -21,7 +21,7 @@ from mepnet.detector.targets import collate, component_slots, make_sample, world
 from mepnet.errors import ConfigError
 from mepnet.stage2.base import LIFTS, Prediction, Predictor, StepContext
 from mepnet.stage2.keypoint import DetectedType, lift_keypoints
-from mepnet.stage2.synthesis import SynthesisType, step_change, step_picture, synthesize
+from mepnet.stage2.synthesis import SynthesisType, Tone, step_change, step_picture, synthesize
 
 #: How the detector's detections are lifted to 3D.
 
@@ -96,7 +96,7 @@ class MEPNetPredictor(Predictor):
     @torch.no_grad()
     def detections(
         self, ctx: StepContext
-    ) -> tuple[list[tuple[list[int], DetectedType]], np.ndarray, tuple | None]:
+    ) -> tuple[list[tuple[list[int], DetectedType]], np.ndarray, Tone | None]:
         """The step's detections per component type (:meth:`detect`) with the picture and the
         tone mapping the change map was found with."""
         was_training = self.model.training

@@ -27,7 +27,7 @@ import functools
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -37,6 +37,7 @@ from mepnet.geom import LDU_PER_CELL, BrickGeomError, placement_box, rotate_latt
 from mepnet.stage2.base import Prediction, Predictor, StepContext
 from mepnet.state import (
     CHANGE_THRESHOLD,
+    SHADOW_FACTORS,
     change_map,
     expected_colours,
     fit_tone,
@@ -161,6 +162,20 @@ def tolerate_lines(change: np.ndarray, outline: np.ndarray) -> np.ndarray:
     return np.where(band, np.minimum(change, reach), change)
 
 
+class Tone(NamedTuple):
+    """How a step's picture draws what mepnet renders: per channel the gain and bias of the tone
+    fit (:func:`mepnet.state.fit_tone`), and whether its renderer casts shadows (then a colour
+    darkened with its hue kept also matches: :func:`_colour_off`)."""
+
+    gain: np.ndarray
+    bias: np.ndarray
+    shadows: bool = False
+
+
+#: Colours compared as rendered.
+PLAIN_TONE = Tone(np.ones(3), np.zeros(3))
+
+
 def base_shades(
     ctx: StepContext, size: int
 ) -> tuple[tuple[np.ndarray, dict[int, np.ndarray]], float] | None:
@@ -199,11 +214,12 @@ SHADOW_PATCH = 1
 PART_LIGHT = (0.3, 1.2)
 
 
-def step_change(ctx: StepContext, picture: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def step_change(ctx: StepContext, picture: np.ndarray) -> tuple[np.ndarray, Tone]:
     """The change map of a step (:func:`mepnet.state.change_map`, lines tolerated by
     :func:`tolerate_lines`): where its ``picture`` (H, W, 3 floats in [0, 1], the manual's
-    image size) differs from the base shape rendered with the step's camera; and the tone fit
-    it compared by (:func:`mepnet.state.fit_tone`, for :func:`synthesize`'s colours)."""
+    image size) differs from the base shape rendered with the step's camera; and the tone it
+    compared by (:class:`Tone`: the tone fit and whether the renderer casts shadows, for
+    :func:`synthesize`'s colours)."""
     w, h = ctx.image_size
     if w != h:
         raise ManualFormatError(f"{ctx.step.where}: synthesis needs square images, got {w}x{h}")
@@ -214,7 +230,8 @@ def step_change(ctx: StepContext, picture: np.ndarray) -> tuple[np.ndarray, np.n
     look = base_shades(ctx, w)
     shades = None if look is None else look[0]
     change = change_map(image, state, tone, shades)
-    if SHADOWS and look is not None and look[1] > SHADOW_EVIDENCE:
+    shadows = SHADOWS and look is not None and look[1] > SHADOW_EVIDENCE
+    if shadows:
         # the renderer casts shadows: a new part's shadow on the base is no change, unless
         # one of the step's parts, in any light, could be what the picture shows there
         dark = shadowed(image, expected_colours(image, state, tone, shades)) & (look[0][0] >= 0)
@@ -235,7 +252,7 @@ def step_change(ctx: StepContext, picture: np.ndarray) -> tuple[np.ndarray, np.n
     fill_enclosed(change, picture, ctx, None if before is None else before[0], base_ids)
     if FILL_COVERED:
         fill_covered(change, ctx, base_ids)
-    return change, tone
+    return change, Tone(tone[0], tone[1], shadows)
 
 
 #: Whether :func:`step_change` marks as changed what :func:`fill_covered` finds.
@@ -373,13 +390,12 @@ def synthesize(
     types: list[SynthesisType],
     time_limit_s: float = 10.0,
     picture: np.ndarray | None = None,
-    tone: np.ndarray | None = None,
+    tone: Tone | None = None,
     budget_s: float | None = None,
 ) -> list[Prediction]:
     """Poses for every instance of ``types`` on ``ctx.base`` (see the module docstring);
     ``picture``: the step image as floats in [0, 1] when the caller has read it already;
-    ``tone``: its tone fit, (2, 3) gain and bias per channel, from :func:`step_change` (none:
-    colours compared as rendered); ``time_limit_s``: each placement search's limit;
+    ``tone``: how it draws colours, from :func:`step_change` (none: compared as rendered); ``time_limit_s``: each placement search's limit;
     ``budget_s``: the whole step's (default :data:`STEP_BUDGET_S`; see below).
 
     A step is solved greedily, one instance at a time; while the finished step explains the
@@ -422,7 +438,7 @@ def synthesize(
     elif picture is None:
         picture = step_picture(ctx)
     if tone is None:
-        tone = np.array([[1.0, 1.0, 1.0], [0.0, 0.0, 0.0]])  # gain, bias per channel
+        tone = PLAIN_TONE
     # a build's first step: every part stands on the ground, wherever the picture shows it
     first = len(ctx.base) == 0
     mask = np.zeros(ctx.image_size[::-1], bool)  # (H, W): every type's changed pixels
@@ -690,7 +706,7 @@ def _solve(
     types: list[SynthesisType],
     time_limit_s: float,
     picture: np.ndarray | None,
-    tone: np.ndarray,
+    tone: Tone,
     wide: bool,
     mask: np.ndarray,
     picture_edges: np.ndarray | None,
@@ -1151,6 +1167,29 @@ def _edge_maps(
     return box, unseen, undrawn
 
 
+#: Whether a renderer that casts shadows (:class:`Tone`) may draw a part darker, hue kept
+#: (:func:`_colour_off`).
+SHADOW_RESIDUAL = True
+#: ... at this cost (largest channel, in [0, 1]) over the darkened colour's residual: drawn in
+#: shadow is a little less likely than drawn lit.
+SHADOW_COST = 0.03
+
+
+def _colour_off(picture: np.ndarray, rgb: np.ndarray, tone: Tone) -> np.ndarray:
+    """Per pixel ((N, 3): the picture's colours in [0, 1] and mepnet's rendered ones, uint8) the
+    largest channel difference after the tone fit; where the renderer casts shadows, no more
+    than the colour darkened by a factor in :data:`mepnet.state.SHADOW_FACTORS` differs, plus
+    :data:`SHADOW_COST`."""
+    expected = rgb / 255.0 * tone.gain + tone.bias
+    off = np.abs(picture - expected).max(axis=1)
+    if tone.shadows and SHADOW_RESIDUAL:
+        f = (picture * expected).sum(axis=1) / np.maximum((expected * expected).sum(axis=1), 1e-6)
+        f = np.clip(f, *SHADOW_FACTORS)
+        dark = np.abs(picture - f[:, None] * expected).max(axis=1) + SHADOW_COST
+        off = np.minimum(off, dark)
+    return off
+
+
 #: A step's part drawn where the picture did not change and within this much (largest channel,
 #: in [0, 1], after the tone fit) of the picture's colour counts neither for nor against it in
 #: :func:`_explained`'s IoU (0: counts against).
@@ -1162,7 +1201,7 @@ def _explained(
     preds: list[Prediction],
     mask: np.ndarray,
     picture: np.ndarray | None,
-    tone: np.ndarray,
+    tone: Tone,
     picture_edges: np.ndarray | None = None,
 ) -> float:
     """How well a step's predicted parts together explain its picture: the IoU of their
@@ -1178,7 +1217,7 @@ def _explained(
     union = int((new | mask).sum())
     off = None  # per pixel the parts draw: the largest channel difference from the picture
     if picture is not None and new.any():
-        off = np.abs(picture[new] - (r.rgb[new] / 255.0 * tone[0] + tone[1])).max(axis=1)
+        off = _colour_off(picture[new], r.rgb[new], tone)
         if QUIET_LEVEL > 0:
             # a part drawn in the picture's own colour where the picture did not change (in
             # front of a part of its colour) is no evidence against it: out of the IoU
@@ -1231,7 +1270,7 @@ def _greedy(
     types: list[SynthesisType],
     time_limit_s: float,
     picture: np.ndarray | None,
-    tone: np.ndarray,
+    tone: Tone,
     prefix: list[First],
     wide: bool = False,
     memo: dict[frozenset[First], tuple[Any, list[tuple[float, First]]]] | None = None,
@@ -1321,8 +1360,7 @@ def _greedy(
                     if 0 <= x < w and 0 <= y < h:
                         score += KEYPOINT_WEIGHT * float(t.heat[int(y), int(x)])
                 if vis.any() and picture is not None:
-                    rendered = d.rgb[vis] / 255.0 * tone[0] + tone[1]
-                    diff = np.abs(picture[box][vis] - rendered).max(axis=1)
+                    diff = _colour_off(picture[box][vis], d.rgb[vis], tone)
                     score -= COLOUR_WEIGHT * float(diff.mean())
                 ranked_here.append((score, (i, yaw, tr)))
                 if best is None or score > best[0]:
