@@ -52,9 +52,9 @@ def stack(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 def _earlier_revisits(monkeypatch: pytest.MonkeyPatch, choices: int | None = None) -> None:
     """Stage 2's revisits as they were before stop 39 (no pairs, the first decision revisited
-    like the others, forced decisions without choices; ``choices``: at every decision; and no
-    relocation of hidden parts, stop 44), so that a test shows what the mechanism it is about
-    buys on its own."""
+    like the others, forced decisions without choices; ``choices``: at every decision; no
+    relocation of hidden parts, stop 44; a single part never shifted, stop 45), so that a test
+    shows what the mechanism it is about buys on its own."""
     import mepnet.stage2.synthesis as synthesis
 
     if choices is not None:
@@ -63,6 +63,7 @@ def _earlier_revisits(monkeypatch: pytest.MonkeyPatch, choices: int | None = Non
     monkeypatch.setattr(synthesis, "PAIRS", False)
     monkeypatch.setattr(synthesis, "REVISIT_FORCED", False)
     monkeypatch.setattr(synthesis, "RELOCATE", False)
+    monkeypatch.setattr(synthesis, "SHIFT_MIN_PARTS", 2)
 
 
 def test_a_stack_of_equal_parts_is_solved_as_a_whole(stack: Path, monkeypatch: pytest.MonkeyPatch):
