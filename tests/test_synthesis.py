@@ -52,9 +52,9 @@ def stack(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 def _earlier_revisits(monkeypatch: pytest.MonkeyPatch, choices: int | None = None) -> None:
     """Stage 2's revisits as they were before stop 39 (no pairs, the first decision revisited
-    like the others, forced decisions without choices; ``choices``: at every decision; no
-    relocation of hidden parts, stop 44; a single part never shifted, stop 45), so that a test
-    shows what the mechanism it is about buys on its own."""
+    like the others, forced decisions without choices; ``choices``: at every decision; and no
+    relocation of hidden parts, stop 44), so that a test shows what the mechanism it is about
+    buys on its own."""
     import mepnet.stage2.synthesis as synthesis
 
     if choices is not None:
@@ -63,7 +63,6 @@ def _earlier_revisits(monkeypatch: pytest.MonkeyPatch, choices: int | None = Non
     monkeypatch.setattr(synthesis, "PAIRS", False)
     monkeypatch.setattr(synthesis, "REVISIT_FORCED", False)
     monkeypatch.setattr(synthesis, "RELOCATE", False)
-    monkeypatch.setattr(synthesis, "SHIFT_MIN_PARTS", 2)
 
 
 def test_a_stack_of_equal_parts_is_solved_as_a_whole(stack: Path, monkeypatch: pytest.MonkeyPatch):
@@ -946,13 +945,16 @@ def test_a_part_drawn_in_shadow_matches_its_colour_only_where_the_renderer_casts
     assert plain[1] > 0.25 and plain[2] > 0.3
 
 
-def test_a_single_part_a_cell_off_is_moved(tmp_path_factory: pytest.TempPathFactory, monkeypatch):
+def test_a_single_part_a_cell_off_is_moved_only_when_asked(
+    tmp_path_factory: pytest.TempPathFactory, monkeypatch
+):
     """S22 manual 6 step 13 (seed 1020006): one 1x2 slope whose best-ranked placements are all
-    a cell off the drawn one, so no decision's next choice reaches it; the step's parts moved
-    a cell or two (:data:`SHIFTS`) now include a step of a single part."""
+    a cell off the drawn one, so no decision's next choice reaches it. Shifting a step of a
+    single part (:data:`SHIFT_MIN_PARTS` 1) mends it; it is off by default (it lost more steps
+    than it mended on a fresh set)."""
     import mepnet.stage2.synthesis as synthesis
 
     folder = _drawn_again(tmp_path_factory, "study22", (1020006,)) / "manual_01020006"
-    assert _main_step(folder, 13) == (1, 1)
-    monkeypatch.setattr(synthesis, "SHIFT_MIN_PARTS", 2)  # as before: steps of two parts or more
     assert _main_step(folder, 13) == (0, 1)
+    monkeypatch.setattr(synthesis, "SHIFT_MIN_PARTS", 1)
+    assert _main_step(folder, 13) == (1, 1)
