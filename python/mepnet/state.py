@@ -220,9 +220,17 @@ def shadowed(
     ((3, H, W), or (3, 1, 1): one colour) darkened by a factor in ``factors``, as a cast shadow
     darkens a face: the least-squares factor within the range and the darkened colour within
     :data:`SHADOW_FIT` of the picture in every channel."""
-    f = (image * expected).sum(axis=0) / np.maximum((expected * expected).sum(axis=0), 1e-6)
+    f = darkening(image, expected, axis=0)
     fit = np.abs(image - f[None] * expected).max(axis=0) < SHADOW_FIT
     return fit & (f >= factors[0]) & (f <= factors[1])
+
+
+def darkening(image: np.ndarray, expected: np.ndarray, axis: int) -> np.ndarray:
+    """Per pixel the factor that, applied to the ``expected`` colour, comes closest to
+    ``image``'s (least squares over the colour channels, along ``axis``)."""
+    return (image * expected).sum(axis=axis) / np.maximum(
+        (expected * expected).sum(axis=axis), 1e-6
+    )
 
 
 #: Brightness levels the shade classes of :func:`shade_classes` are told apart at.

@@ -39,6 +39,7 @@ from mepnet.state import (
     CHANGE_THRESHOLD,
     SHADOW_FACTORS,
     change_map,
+    darkening,
     expected_colours,
     fit_tone,
     previous_change,
@@ -227,17 +228,17 @@ def step_change(ctx: StepContext, picture: np.ndarray) -> tuple[np.ndarray, Tone
     state, outline = state_render(ctx.base, ctx.step.camera, w)  # type: ignore[arg-type]
     image = picture.transpose(2, 0, 1)
     tone = fit_tone(image, state)
-    look = base_shades(ctx, w)
-    shades = None if look is None else look[0]
+    shades, evidence = base_shades(ctx, w) or (None, 0.0)
     change = change_map(image, state, tone, shades)
-    shadows = SHADOWS and look is not None and look[1] > SHADOW_EVIDENCE
+    shadows = SHADOWS and shades is not None and evidence > SHADOW_EVIDENCE
     if shadows:
         # the renderer casts shadows: a new part's shadow on the base is no change, unless
         # one of the step's parts, in any light, could be what the picture shows there
-        dark = shadowed(image, expected_colours(image, state, tone, shades)) & (look[0][0] >= 0)
+        classes, _ = shades
+        dark = shadowed(image, expected_colours(image, state, tone, shades)) & (classes >= 0)
         for colour in {c.colour for c in ctx.step.components}:
             rgb = np.asarray(_bg.colour_rgb(colour), np.float32) / 255.0 * tone[0] + tone[1]
-            dark &= ~shadowed(image, rgb[:, None, None].astype(np.float32), PART_LIGHT)
+            dark &= ~shadowed(image, rgb[:, None, None], PART_LIGHT)
         change[dark] = 0.0
     before = previous_picture(ctx)
     if before is not None:
@@ -395,8 +396,8 @@ def synthesize(
 ) -> list[Prediction]:
     """Poses for every instance of ``types`` on ``ctx.base`` (see the module docstring);
     ``picture``: the step image as floats in [0, 1] when the caller has read it already;
-    ``tone``: how it draws colours, from :func:`step_change` (none: compared as rendered); ``time_limit_s``: each placement search's limit;
-    ``budget_s``: the whole step's (default :data:`STEP_BUDGET_S`; see below).
+    ``tone``: how it draws colours, from :func:`step_change` (none: compared as rendered);
+    ``time_limit_s``: each placement search's limit; ``budget_s``: the whole step's (default :data:`STEP_BUDGET_S`; see below).
 
     A step is solved greedily, one instance at a time; while the finished step explains the
     changed pixels poorly (:func:`_explained` below :data:`WELL_EXPLAINED`), each decision in
@@ -1185,8 +1186,7 @@ def _colour_off(picture: np.ndarray, rgb: np.ndarray, tone: Tone) -> np.ndarray:
     expected = rgb / 255.0 * tone.gain + tone.bias
     off = np.abs(picture - expected).max(axis=1)
     if tone.shadows and SHADOW_RESIDUAL:
-        f = (picture * expected).sum(axis=1) / np.maximum((expected * expected).sum(axis=1), 1e-6)
-        f = np.clip(f, *SHADOW_FACTORS)
+        f = np.clip(darkening(picture, expected, axis=1), *SHADOW_FACTORS)
         dark = np.abs(picture - f[:, None] * expected).max(axis=1) + SHADOW_COST
         off = np.minimum(off, dark)
     return off
