@@ -40,6 +40,7 @@ bench: install
 	$(PY) tests/benchmarks/bench_cameras.py --out docs/benchmarks.md
 	$(PY) tests/benchmarks/bench_detector.py --out docs/benchmarks.md
 	$(PY) tests/benchmarks/bench_styles.py --out docs/benchmarks.md
+	$(PY) tests/benchmarks/bench_repair.py --out docs/benchmarks.md
 
 lint: install
 	cargo fmt --all -- --check

@@ -492,10 +492,11 @@ def test_a_row_of_parts_a_cell_off_is_moved_as_a_whole(monkeypatch: pytest.Monke
     assert step_matches(stuck, stuck.main.steps[0]) == 0
 
 
-def _main_step(manual_dir: Path, k: int) -> tuple[int, int]:
-    """Predict main step ``k`` (1-based) teacher-forced, on the true shape before it (the
-    earlier pictures as the plan loop hands them); returns how many of its true instances
-    were placed exactly (rotation modulo symmetry), and how many there are."""
+def _main_step(manual_dir: Path, k: int, submodule: int | None = None) -> tuple[int, int]:
+    """Predict main step ``k`` (1-based; of submodule ``submodule`` when given) teacher-forced,
+    on the true shape before it (the earlier pictures as the plan loop hands them); returns how
+    many of its true instances were placed exactly (rotation modulo symmetry), and how many
+    there are."""
     from mepnet.manual import answers_of
     from mepnet.stage2 import StepContext
     from mepnet.stage2.base import EarlierStep
@@ -503,14 +504,15 @@ def _main_step(manual_dir: Path, k: int) -> tuple[int, int]:
     m = load_manual(manual_dir)
     ans = answers_of(m)
     comps = ans.components(m)
+    build = m.main if submodule is None else m.submodules[submodule]
+    truth = ans.build(submodule)
     earlier = tuple(
-        EarlierStep(m.main.steps[j], len(ans.main.assembly_before(j + 1, comps)))
-        for j in range(k - 1)
+        EarlierStep(build.steps[j], len(truth.assembly_before(j + 1, comps))) for j in range(k - 1)
     )
-    base = ans.main.assembly_before(k - 1, comps)
-    ctx = StepContext(m.main.steps[k - 1], base, comps, m.image_size, earlier)
+    base = truth.assembly_before(k - 1, comps)
+    ctx = StepContext(build.steps[k - 1], base, comps, m.image_size, earlier)
     preds = make_predictor("mepnet").predict(ctx)
-    true = ans.main.truth(k - 1).placed()
+    true = truth.truth(k - 1).placed()
     left, hits = list(preds), 0
     for i in true:
         hit = next(
@@ -943,6 +945,20 @@ def test_a_part_drawn_in_shadow_matches_its_colour_only_where_the_renderer_casts
     assert off[2] > 0.3
     plain = _colour_off(picture, rgb, PLAIN_TONE)
     assert plain[1] > 0.25 and plain[2] > 0.3
+
+
+def test_a_first_step_tries_each_part_first(tmp_path_factory: pytest.TempPathFactory, monkeypatch):
+    """F20c manual 0, submodule 0's first step (seed 1010000): a slope standing on a round
+    plate and a jumper plate. The greedy's first round ranks the slope best in six places, so
+    a revisit of its first decision tried only slopes; the parts under it must go first, and
+    forcing either of them first explains the picture wholly. :data:`TYPE_LEADS` tries each
+    other type's best placement at the first decision too."""
+    import mepnet.stage2.synthesis as synthesis
+
+    folder = _drawn_again(tmp_path_factory, "typeleads", (1010000,)) / "manual_01010000"
+    assert _main_step(folder, 1, submodule=0) == (3, 3)
+    monkeypatch.setattr(synthesis, "TYPE_LEADS", False)
+    assert _main_step(folder, 1, submodule=0)[0] < 3
 
 
 def test_a_single_part_a_cell_off_is_moved_only_when_asked(

@@ -754,7 +754,9 @@ def _solve(
     # each decision in turn: the next best choices there, the rest greedy again
     level = 0
     while score < WELL_EXPLAINED and level < len(taken) and _clock() < deadline:
-        for alt in options[level][1 : LEAD_CHOICES if level == 0 else FIRST_CHOICES]:
+        for alt in _choices(options[level], LEAD_CHOICES if level == 0 else FIRST_CHOICES, level)[
+            1:
+        ]:
             if _clock() >= deadline:
                 break
             if alt == taken[level]:
@@ -961,6 +963,27 @@ First = tuple[int, int, tuple[int, int, int]]
 #: Whether a decision forced first (:data:`LATER_FIRST`, a revisit's prefix) keeps its round's
 #: ranking, so that a revisit can try its next choices (:func:`_greedy`).
 REVISIT_FORCED = True
+#: Whether the first decision of a multi-type step explained worse also tries each other
+#: type's best placement of its round (:func:`_choices`): its best choices may all be one
+#: type's (the slope on top of a first step, in six places), while the part under it, which
+#: must go first, ranks further down.
+TYPE_LEADS = True
+
+
+def _choices(options: list[First], n: int, level: int) -> list[First]:
+    """The choices a revisit tries at a decision: the round's ``n`` best (``options``, best
+    first: the greedy's own first), and at the first decision (``level`` 0, with
+    :data:`TYPE_LEADS`) each other type's best after them."""
+    out = list(options[:n])
+    if TYPE_LEADS and level == 0:
+        seen = {f[0] for f in out}
+        for f in options[n:]:
+            if f[0] not in seen:
+                seen.add(f[0])
+                out.append(f)
+    return out
+
+
 #: Whether a step of three or more instances explained worse than :data:`WELL_EXPLAINED` is
 #: also solved with each pair of its decisions taken again last (:func:`_solve`).
 PAIRS = True
