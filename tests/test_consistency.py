@@ -171,11 +171,24 @@ def test_a_tie_a_later_step_tells_apart_is_settled_there(tmp_path: Path):
     the same step; two of its places explain the picture equally (stage 2 keeps the other as a
     tie) and it took the wrong one. Step 14's part then cannot stand where the picture shows it
     (the wrong plate is in the way): predicted again on the tie, step 14 explains its picture
-    better, and the plan takes the tie: the whole manual is built exactly right."""
-    from mepnet.plan import built_exactly
+    better, and the plan takes the tie: the whole manual is built exactly right. The retry is
+    a second look at step 14, on its own smaller budget (:data:`mepnet.plan.TIE_RETRY_BUDGET_S`)."""
+    from mepnet.plan import TIE_RETRY_BUDGET_S, built_exactly
 
     man = load_manual(next(iter(iter_manual_dirs(generate_manuals(tmp_path, 1, 930001)))))
-    run = run_manual(man, make_predictor("mepnet"))
+    predictor = make_predictor("mepnet")
+    budgets = []
+    plain = predictor.predict
+
+    def spy(ctx):
+        budgets.append(ctx.budget_s)
+        return plain(ctx)
+
+    predictor.predict = spy  # type: ignore[method-assign]
+    run = run_manual(man, predictor)
+    steps = sum(len(b.steps) for b in run.builds)
+    assert budgets.count(None) == steps  # every step's own prediction: stage 2's budget
+    assert budgets.count(TIE_RETRY_BUDGET_S) >= 1 and len(budgets) > steps  # and the retries'
     step7 = run.main.steps[6]
     assert any(p.extra.get("ties") for p in step7.predictions)
     revised = [r for s in run.main.steps for r in s.revisions]

@@ -102,6 +102,35 @@ def test_a_step_out_of_time_keeps_its_first_solution_and_says_so(
     assert any("ran out of time" in f for f in last.check.flags)
 
 
+def test_a_step_asked_for_less_time_gets_it(stack: Path):
+    """A step's own budget (:attr:`StepContext.budget_s`, what the plan's tie retries ask for)
+    bounds stage 2's search like its default one: none left, the greedy's solution is kept and
+    flagged; no budget asked for, the stack is solved as before."""
+    import dataclasses
+
+    from mepnet.manual import answers_of
+    from mepnet.stage2 import StepContext
+    from mepnet.stage2.base import EarlierStep
+
+    m = load_manual(stack)
+    ans = answers_of(m)
+    comps = ans.components(m)
+    k = len(m.main.steps)
+    earlier = tuple(
+        EarlierStep(m.main.steps[j], len(ans.main.assembly_before(j + 1, comps)))
+        for j in range(k - 1)
+    )
+    ctx = StepContext(
+        m.main.steps[k - 1], ans.main.assembly_before(k - 1, comps), comps, m.image_size, earlier
+    )
+    rushed = make_predictor("synthesis").predict(dataclasses.replace(ctx, budget_s=0.0))
+    assert all(p.placed and p.extra.get("over_budget") for p in rushed)
+    calm = make_predictor("synthesis").predict(ctx)
+    assert not any(p.extra.get("over_budget") for p in calm)
+    assert [p.t[1] for p in calm] == [6, 9, 12]
+    assert [p.t for p in rushed] != [p.t for p in calm]
+
+
 def test_a_solution_cut_short_never_wins(stack: Path, monkeypatch: pytest.MonkeyPatch):
     """A greedy whose forced first decision does not fit ends early with the parts placed so
     far. Galaxy Explorer main step 10 (12 black plates on a black model, the greedy's

@@ -167,8 +167,9 @@ def run_build(
             where: str = step.where,
             earlier: tuple[EarlierStep, ...] = tuple(earlier),
             base: _bg.Assembly = base,
+            budget_s: float | None = None,
         ) -> tuple[list[Prediction], float]:
-            ctx = StepContext(page, base.copy(), components, manual.image_size, earlier)
+            ctx = StepContext(page, base.copy(), components, manual.image_size, earlier, budget_s)
             try:
                 return predict_step(predictor, ctx, truth)
             except (MepnetError, BrickGeomError) as err:
@@ -243,7 +244,7 @@ def run_build(
                     (preds, placed, new, built, checked),
                     (camera.camera, w, h),
                     lambda b, page=page_seen, predict=predict, finish=finish: finish(
-                        predict(page, base=b)[0], b
+                        predict(page, base=b, budget_s=TIE_RETRY_BUDGET_S)[0], b
                     ),
                 )
                 tie_seconds = time.perf_counter() - t0
@@ -300,6 +301,11 @@ def run_build(
 TIE_RETRY_BELOW = 0.9
 #: ... and such a solution is taken when the step then explains its picture this much better.
 TIE_GAIN = 0.01
+#: CPU seconds each such prediction may take (:attr:`mepnet.stage2.StepContext.budget_s`): a
+#: step of many parts on another renderer's picture uses stage 2's whole budget (30 s), and
+#: predicting it again in full on a tie cost LeoCAD's F20c set 0.064 s a step on average, more
+#: than the rest of the repair together.
+TIE_RETRY_BUDGET_S = 3.0
 #: The latest steps with ties the retries look at (each retry predicts the step again).
 TIE_STEPS = 4
 #: The latest steps with ties kept open for later pictures to judge (:func:`_ties_seen`).

@@ -35,6 +35,10 @@ class StepContext:
     #: (in the order they were added) existed after it: their pictures show the base shape, or
     #: a part of it, as the manual's own renderer draws it.
     earlier: tuple[EarlierStep, ...] = ()
+    #: CPU seconds the step's search may take (None: the predictor's own limit; stage 2 by
+    #: synthesis: :data:`mepnet.stage2.synthesis.STEP_BUDGET_S`). The plan's second looks at a
+    #: step (:data:`mepnet.plan.TIE_RETRY_BUDGET_S`) ask for less.
+    budget_s: float | None = None
 
     @property
     def camera(self) -> _bg.Camera:

@@ -397,7 +397,8 @@ def synthesize(
     """Poses for every instance of ``types`` on ``ctx.base`` (see the module docstring);
     ``picture``: the step image as floats in [0, 1] when the caller has read it already;
     ``tone``: how it draws colours, from :func:`step_change` (none: compared as rendered);
-    ``time_limit_s``: each placement search's limit; ``budget_s``: the whole step's (default :data:`STEP_BUDGET_S`; see below).
+    ``time_limit_s``: each placement search's limit; ``budget_s``: the whole step's (default
+    ``ctx.budget_s``, else :data:`STEP_BUDGET_S`; see below).
 
     A step is solved greedily, one instance at a time; while the finished step explains the
     changed pixels poorly (:func:`_explained` below :data:`WELL_EXPLAINED`), each decision in
@@ -433,7 +434,9 @@ def synthesize(
     part hidden under the step's others) are handed on as the step's ties
     (``extra["ties"]`` on every prediction, :func:`_ties`): a later step's picture may tell
     them apart (:func:`mepnet.plan.run_build`)."""
-    deadline = _clock() + (STEP_BUDGET_S if budget_s is None else budget_s)
+    if budget_s is None:
+        budget_s = STEP_BUDGET_S if ctx.budget_s is None else ctx.budget_s
+    deadline = _clock() + budget_s
     if not COLOUR_WEIGHT:
         picture = None
     elif picture is None:
