@@ -105,6 +105,38 @@ def test_an_earlier_placement_the_pictures_contradict_is_put_back(manual_dir: Pa
     assert none == [] and same == placements
 
 
+def test_a_part_beside_the_model_is_put_back_by_its_own_picture(monkeypatch: pytest.MonkeyPatch):
+    """A dark green 2x4 plate on a 2x4 brick of its colour adds almost nothing to the
+    silhouette (a plate's thickness), so a change map can miss it and stage 2 stand it on the
+    ground beside the brick, over the page. The step's own picture contradicts that at once:
+    with the latest step's parts suspect too (:data:`OWN_STEP`) and candidates ranked against
+    the whole silhouette (:data:`SILHOUETTE_CANDIDATES`; what is unexplained beside the brick
+    is only the plate's thin edge), the repair puts it on the brick before the next step is
+    predicted. Either off, it stays."""
+    import mepnet.consistency as consistency
+
+    brick, plate = _bg.Component.primitive("3001"), _bg.Component.primitive("3020")
+    cam = _bg.Camera(30.0, 225.0, 0.0, 0.012, (0.0, -0.1))
+    green = 288  # dark green
+    b = Placement(1, 0, brick, 0, (0, 3, 0), green)
+    true = Placement(2, 0, plate, 0, (0, 4, 0), green)
+    wrong = Placement(2, 0, plate, 0, (-8, 1, -8), green)  # on the ground, over the page
+    pictures = [build([b]), build([b, true])]
+    assert all(p is not None for p in pictures) and build([b, wrong]) is not None
+    views = [View.of(k + 1, cam, _bg.render(a, cam, 128, 128).rgb) for k, a in enumerate(pictures)]
+    assert disagreement([b, wrong], views, 128, 128)[1] > 1000
+    fixed, revisions = repair([b, wrong], views, 128, 128)
+    assert [(r.step, r.found_at) for r in revisions] == [(2, 2)]
+    assert plate.same_placement(fixed[1].yaw, fixed[1].t, true.yaw, true.t)
+    assert disagreement(fixed, views, 128, 128) == [0, 0]
+    monkeypatch.setattr(consistency, "SILHOUETTE_CANDIDATES", 0)
+    fixed, _ = repair([b, wrong], views, 128, 128)
+    assert not plate.same_placement(fixed[1].yaw, fixed[1].t, true.yaw, true.t)
+    monkeypatch.setattr(consistency, "SILHOUETTE_CANDIDATES", 16)
+    monkeypatch.setattr(consistency, "OWN_STEP", False)
+    assert repair([b, wrong], views, 128, 128) == ([b, wrong], [])
+
+
 def test_the_plan_records_confidence_flags_and_revisions(manual_dir: Path):
     man = load_manual(manual_dir)
     run = run_manual(man, make_predictor("oracle"))

@@ -90,12 +90,20 @@ SILHOUETTE_SLACK = 2
 SUSPECT_PX, SUSPECT_SHARE = 15, 0.2
 #: Placements tried per suspect (ranked by their overlap with what is unexplained).
 REPAIR_CANDIDATES = 8
+#: ... and, for a part of the latest step (:data:`OWN_STEP`), this many ranked by their overlap
+#: with the picture's whole silhouette (0: none; symmetric parts' equal yaws each count: 16
+#: are 8 placements of a 2x4 plate).
+SILHOUETTE_CANDIDATES = 16
 #: Pictures a repair is judged on: the suspect's own step and the latest ones.
 REPAIR_VIEWS = 4
 #: A repair is made when it lowers the pictures' disagreement by this many pixels and share.
 REPAIR_GAIN_PX, REPAIR_GAIN_SHARE = 20, 0.1
 #: Suspects looked at per step.
 REPAIRS_PER_STEP = 2
+#: Whether the latest step's own instances may be suspects too: stage 2 placed them to explain
+#: where its picture changed, but where the change map misses a part (a dark part on a base of
+#: its colour, drawn with no edge lines) it may stand one beside the model, over the page.
+OWN_STEP = True
 
 
 @dataclass(frozen=True)
@@ -254,7 +262,7 @@ def suspects(
         for i in np.argsort(-bad)
         if bad[i] >= SUSPECT_PX
         and bad[i] >= SUSPECT_SHARE * drawn[i]
-        and placements[i].step < view.step
+        and (placements[i].step < view.step or OWN_STEP)
     ]
     return [int(i) for i in out[:REPAIRS_PER_STEP]]
 
@@ -303,6 +311,14 @@ def repair(
             ranked, _ = _bg.abys_ranked(
                 rest_shape, v.camera, w, h, sus.component, unexplained, REPAIR_CANDIDATES, 1.0
             )
+            if SILHOUETTE_CANDIDATES and sus.step == latest.step:
+                # a part of the latest step: also those best inside the whole silhouette (a
+                # part laid over parts drawn already, a plate on a brick of its size, adds
+                # little that is unexplained; an earlier part so placed explains too readily
+                # what a later step's wrong part left unexplained)
+                ranked += _bg.abys_ranked(
+                    rest_shape, v.camera, w, h, sus.component, v.narrow, SILHOUETTE_CANDIDATES, 1.0
+                )[0]
             for yaw, t, _iou in ranked:
                 if (yaw, tuple(t)) in tried:
                     continue
