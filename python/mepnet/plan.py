@@ -286,6 +286,14 @@ def run_build(
                 rebuilt = build_placements(placements)
                 assert rebuilt is not None  # the repair keeps every placement valid
                 base = rebuilt
+            if any(r.step == k + 1 for r in revisions):
+                # the step's own part put back (consistency.OWN_STEP): its check judges the
+                # step as the plan now has it
+                before = build_placements([p for p in placements if p.step <= k])
+                assert before is not None
+                own = StepContext(page_seen, before, components, manual.image_size, tuple(earlier))
+                run.steps[-1].check = check_step(own, run.steps[-1].predictions, base)
+                run.steps[-1].check.changed = None
             run.steps[-1].revisions = tie_revisions + revisions
             run.steps[-1].repair_seconds = time.perf_counter() - t0 + tie_seconds
         earlier.append(EarlierStep(page_seen, len(base)))
