@@ -252,9 +252,9 @@ def _disagreement_with(part: Placement, backdrops: list[_Backdrop], w: int, h: i
 def suspects(
     ids: np.ndarray, seen: np.ndarray, view: View, placements: list[Placement]
 ) -> list[int]:
-    """Indices into ``placements`` of instances from earlier steps drawn where ``view``'s
-    picture shows the page (``ids``, ``seen``: :meth:`View.drawn` of the shape, ids in
-    placement order), worst first."""
+    """Indices into ``placements`` of instances from earlier steps (and, with :data:`OWN_STEP`,
+    from the view's own) drawn where ``view``'s picture shows the page (``ids``, ``seen``:
+    :meth:`View.drawn` of the shape, ids in placement order), worst first."""
     bad = np.bincount(ids[seen & ~view.wide], minlength=len(placements))
     drawn = np.bincount(ids[ids >= 0], minlength=len(placements))
     out = [
@@ -270,10 +270,11 @@ def suspects(
 def repair(
     placements: list[Placement], views: list[View], w: int, h: int
 ) -> tuple[list[Placement], list[Revision]]:
-    """Re-place the earlier instances the latest view's picture contradicts (:func:`suspects`):
-    each is taken out and the placements that best explain what the pictures show and nothing
-    explains (:func:`mepnet._brickgeom.abys_ranked` on the latest view and on the suspect's own
-    step) are tried in its place; one that keeps every placement valid in order and lowers the
+    """Re-place the instances the latest view's picture contradicts (:func:`suspects`: earlier
+    steps', and the latest step's own): each is taken out and the placements that best explain
+    what the pictures show and nothing explains (:func:`mepnet._brickgeom.abys_ranked` on the
+    latest view and on the suspect's own step; for the latest step's own, also those best
+    inside the whole silhouette, :data:`SILHOUETTE_CANDIDATES`) are tried in its place; one that keeps every placement valid in order and lowers the
     disagreement over the suspect's own picture and the latest ones (:func:`disagreement`) by
     :data:`REPAIR_GAIN_PX` pixels and :data:`REPAIR_GAIN_SHARE`, without raising it on any
     of them, replaces it. Returns the

@@ -98,7 +98,8 @@ def main(argv: list[str] | None = None) -> int:
         "`mepnet.consistency` and without it (the reference, same run, same manuals); one process, "
         f"this machine ({os.cpu_count()} cores, load average {load:.1f} when it finished: the "
         "machine is shared). The repair's seconds include a step predicted again on the ties of "
-        "the steps before it. Target: the repair adds <= 0.05 s per step on average.",
+        "the steps before it. Target: the repair adds <= 0.05 s per step on average. Command: "
+        f"`python tests/benchmarks/bench_repair.py {' '.join(sys.argv[1:] if argv is None else argv)}`.",
         "",
         "| manuals | steps | predictor s/step, no repair (reference) | predictor s/step, with repair | "
         "repair s/step (mean) | repair p95 | revisions | whole plan with / without repair |",
