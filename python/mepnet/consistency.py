@@ -274,11 +274,11 @@ def repair(
     steps', and the latest step's own): each is taken out and the placements that best explain
     what the pictures show and nothing explains (:func:`mepnet._brickgeom.abys_ranked` on the
     latest view and on the suspect's own step; for the latest step's own, also those best
-    inside the whole silhouette, :data:`SILHOUETTE_CANDIDATES`) are tried in its place; one that keeps every placement valid in order and lowers the
-    disagreement over the suspect's own picture and the latest ones (:func:`disagreement`) by
-    :data:`REPAIR_GAIN_PX` pixels and :data:`REPAIR_GAIN_SHARE`, without raising it on any
-    of them, replaces it. Returns the
-    placements and the revisions made."""
+    inside the whole silhouette, :data:`SILHOUETTE_CANDIDATES`) are tried in its place; one
+    that keeps every placement valid in order and lowers the disagreement over the suspect's
+    own picture and the latest ones (:func:`disagreement`) by :data:`REPAIR_GAIN_PX` pixels
+    and :data:`REPAIR_GAIN_SHARE`, without raising it on any of them, replaces it. Returns
+    the placements and the revisions made."""
     if not views or not placements:
         return placements, []
     latest = views[-1]

@@ -188,14 +188,25 @@ def run_build(
         seen = None if camera.camera is None else camera.step_camera()
         page_seen = dataclasses.replace(step, camera=seen)
 
+        def judge(
+            preds: list[Prediction],
+            before: _bg.Assembly,
+            built: _bg.Assembly,
+            page_seen: Step = page_seen,
+            earlier: tuple[EarlierStep, ...] = tuple(earlier),
+        ) -> StepCheck:
+            """The check of the step's ``preds`` placed on the shape ``before`` (making
+            ``built``)."""
+            ctx = StepContext(page_seen, before, components, manual.image_size, earlier)
+            return check_step(ctx, preds, built)
+
         def finish(
             preds: list[Prediction],
             before: _bg.Assembly,
             step: Step = step,
             k: int = k,
             kept: list[int] = kept,
-            page_seen: Step = page_seen,
-            earlier: tuple[EarlierStep, ...] = tuple(earlier),
+            judge: Callable[..., StepCheck] = judge,
         ) -> tuple[list[Prediction], list[Placed | None], list[Placement], _bg.Assembly, StepCheck]:
             """The step's predictions back in the page's entry numbering (a failure for every
             entry left out) placed on a copy of the shape ``before`` and checked: the
@@ -223,12 +234,7 @@ def run_build(
                     except BrickGeomError as e:  # a predictor other than stage 2 may collide
                         p.failure = str(e)
                 placed.append(pl)
-            checked = check_step(
-                StepContext(page_seen, before, components, manual.image_size, earlier),
-                preds,
-                built,
-            )
-            return preds, placed, new, built, checked
+            return preds, placed, new, built, judge(preds, before, built)
 
         # the predictions join the shape (teacher-forced: a trial copy; the true step joins it)
         preds, placed, new, built, checked = finish(preds, base)
@@ -291,8 +297,7 @@ def run_build(
                 # step as the plan now has it
                 before = build_placements([p for p in placements if p.step <= k])
                 assert before is not None
-                own = StepContext(page_seen, before, components, manual.image_size, tuple(earlier))
-                run.steps[-1].check = check_step(own, run.steps[-1].predictions, base)
+                run.steps[-1].check = judge(run.steps[-1].predictions, before, base)
                 run.steps[-1].check.changed = None
             run.steps[-1].revisions = tie_revisions + revisions
             run.steps[-1].repair_seconds = time.perf_counter() - t0 + tie_seconds

@@ -392,13 +392,12 @@ def synthesize(
     time_limit_s: float = 10.0,
     picture: np.ndarray | None = None,
     tone: Tone | None = None,
-    budget_s: float | None = None,
 ) -> list[Prediction]:
     """Poses for every instance of ``types`` on ``ctx.base`` (see the module docstring);
     ``picture``: the step image as floats in [0, 1] when the caller has read it already;
     ``tone``: how it draws colours, from :func:`step_change` (none: compared as rendered);
-    ``time_limit_s``: each placement search's limit; ``budget_s``: the whole step's (default
-    ``ctx.budget_s``, else :data:`STEP_BUDGET_S`; see below).
+    ``time_limit_s``: each placement search's limit; the whole step's budget is
+    ``ctx.budget_s``, else :data:`STEP_BUDGET_S` (see below).
 
     A step is solved greedily, one instance at a time; while the finished step explains the
     changed pixels poorly (:func:`_explained` below :data:`WELL_EXPLAINED`), each decision in
@@ -434,9 +433,7 @@ def synthesize(
     part hidden under the step's others) are handed on as the step's ties
     (``extra["ties"]`` on every prediction, :func:`_ties`): a later step's picture may tell
     them apart (:func:`mepnet.plan.run_build`)."""
-    if budget_s is None:
-        budget_s = STEP_BUDGET_S if ctx.budget_s is None else ctx.budget_s
-    deadline = _clock() + budget_s
+    deadline = _clock() + (STEP_BUDGET_S if ctx.budget_s is None else ctx.budget_s)
     if not COLOUR_WEIGHT:
         picture = None
     elif picture is None:
@@ -757,9 +754,8 @@ def _solve(
     # each decision in turn: the next best choices there, the rest greedy again
     level = 0
     while score < WELL_EXPLAINED and level < len(taken) and _clock() < deadline:
-        for alt in _choices(options[level], LEAD_CHOICES if level == 0 else FIRST_CHOICES, level)[
-            1:
-        ]:
+        choices = _choices(options[level], LEAD_CHOICES if level == 0 else FIRST_CHOICES, level)
+        for alt in choices[1:]:
             if _clock() >= deadline:
                 break
             if alt == taken[level]:
