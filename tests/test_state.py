@@ -193,6 +193,34 @@ def test_faces_lit_another_way_are_mapped_by_the_previous_picture():
     assert shaded[new].mean() > 0.8
 
 
+def test_a_new_parts_faces_are_compared_as_the_manuals_renderer_lights_them():
+    """Per shade level one factor, learnt from the previous picture of the base (a renderer
+    lighting faces almost flat), maps a new part of another colour onto the picture: its
+    colour residual in stage 2 falls to a few hundredths, where one tone for all faces leaves
+    it off by a tenth or more."""
+    from mepnet.stage2.synthesis import Tone, _colour_off
+    from mepnet.state import fit_tone, shade_classes, shade_factors, state_render
+
+    base = _shape()
+    shape = base.copy()
+    shape.add(_bg.Component.primitive("3003"), 0, (-3, 6, 0), 25)  # orange: not in the base
+    previous = _lit_flat(base, CAM)
+    seen, _ = state_render(base, CAM, 256)
+    classes = shade_classes(base, CAM, 256)
+    tone = fit_tone(previous, seen)
+    factors = shade_factors(previous, seen, classes, tone)
+    assert (factors != 1.0).sum() >= 2  # faces mepnet shades darker are drawn lighter
+    picture = _lit_flat(shape, CAM)
+    r = _bg.render(shape, make_camera(CAM), 256, 256)
+    new = r.ids == 2
+    px = picture.transpose(1, 2, 0)[new]
+    colour = np.asarray(_bg.colour_rgb(25), np.float64)
+    shaded = _colour_off(px, r.rgb[new], Tone(tone[0], tone[1], False, factors), colour).mean()
+    plain = _colour_off(px, r.rgb[new], Tone(tone[0], tone[1], False)).mean()
+    assert shaded < 0.05
+    assert plain > 0.1
+
+
 def test_lines_drawn_on_the_bases_stud_rims_are_not_changes():
     """A renderer drawing every edge of the base thick (stud rims too, as LeoCAD outlines
     them): within a pixel of the edges of mepnet's drawing of the base a change is kept only

@@ -724,6 +724,31 @@ def test_a_part_turned_about_itself_is_tried(tmp_path: Path, monkeypatch: pytest
     assert any(comp.same_placement(wrong.yaw, wrong.t, y, t) for y, t in turned)
 
 
+def test_moves_along_the_view_ray_are_drawn_in_place():
+    """``_ray_shifts``: the lattice moves a part can make without moving on the picture (it
+    goes nearer or farther along the view ray), shortest on the picture first, both ways; from
+    straight above, one plate up or down."""
+    import mepnet.stage2.synthesis as synthesis
+    from mepnet import _brickgeom as _bg
+
+    for elevation, azimuth in ((30.0, 315.0), (33.8, 314.9), (25.0, 225.0)):
+        cam = _bg.Camera(elevation, azimuth, 0.0, 0.008, (0.0, 0.0))
+        m = np.asarray(cam.pixel_matrix(256, 256))[:, :3]
+        stud = min(float(np.hypot(*(m[:, a] * 20.0))) for a in (0, 2))
+        moves = synthesis._ray_shifts(cam, 256, 256)
+        assert len(moves) == synthesis.RAY_SHIFT_COUNT
+        px = [float(np.hypot(*(m @ (np.array(d) * (10.0, 8.0, 10.0))))) for d in moves]
+        assert px == sorted(px) and px[-1] <= synthesis.RAY_PX * stud
+        assert all(tuple(-x for x in d) in moves for d in moves)
+        # along the view ray: in LDU nearly parallel to the camera's axis
+        axis = np.asarray(cam.rotation())[2]
+        for d in moves:
+            v = np.array(d) * (10.0, 8.0, 10.0)
+            assert abs(float(v @ axis)) / float(np.linalg.norm(v)) > 0.98
+    top = synthesis._ray_shifts(_bg.Camera(90.0, 225.0, 0.0, 0.008, (0.0, 0.0)), 256, 256)
+    assert sorted(top[:2]) == [(0, -1, 0), (0, 1, 0)]
+
+
 @pytest.fixture(scope="module")
 def study(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """Five manuals of the study set S20 (seed 980000; docs/results.md) drawn again."""

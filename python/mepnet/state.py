@@ -269,6 +269,47 @@ def shade_tones(image: np.ndarray, state: np.ndarray, classes: np.ndarray) -> di
     return out
 
 
+#: The range of a shade class's factor (:func:`shade_factors`): another renderer's lighting of a
+#: face, not the freedom to turn one colour into another.
+SHADE_FACTOR_RANGE = (0.55, 1.8)
+#: A shade class whose pixels (gain times colour, per channel) square to less than this on
+#: average is too dark to show a factor (:func:`shade_factors`).
+SHADE_FACTOR_MIN_SQUARE = 0.003
+
+
+def shade_factors(
+    image: np.ndarray, state: np.ndarray, classes: np.ndarray, tone: np.ndarray
+) -> np.ndarray:
+    """Per shade level (:func:`shade_classes`, ``SHADE_LEVELS + 1`` entries) the factor by which
+    the picture ``image`` (3, H, W) draws faces of that level brighter or darker than mepnet's
+    ``state`` render (3, H, W) once the page's ``tone`` ((2, 3): gain, bias) is applied:
+    ``image ~ gain * factor * state + bias``; one number per level for every colour (where
+    :func:`shade_tones` fits a gain and bias per channel to the few colours the base has, which
+    says nothing of a new part's colour). Robust least squares over the level's pixels and
+    channels (refitted twice on those within 0.1); 1 for levels of fewer than
+    :data:`SHADE_MIN_PX` pixels or too dark to tell (:data:`SHADE_FACTOR_MIN_SQUARE`)."""
+    out = np.ones(SHADE_LEVELS + 1)
+    gain, bias = tone[0][:, None], tone[1][:, None]
+    for k in np.unique(classes[classes >= 0]):
+        sel = classes == k
+        if sel.sum() < SHADE_MIN_PX or not 0 <= k <= SHADE_LEVELS:
+            continue
+        x = (gain * state[:, sel]).ravel().astype(np.float64)
+        y = (image[:, sel] - bias).ravel().astype(np.float64)
+        if float((x * x).mean()) < SHADE_FACTOR_MIN_SQUARE:
+            continue
+        f = 1.0
+        keep = np.ones(x.size, bool)
+        for _ in range(3):
+            xk, yk = x[keep], y[keep]
+            if xk.size < SHADE_MIN_PX:
+                break
+            f = float(np.clip((xk * yk).sum() / max((xk * xk).sum(), 1e-9), *SHADE_FACTOR_RANGE))
+            keep = np.abs(y - f * x) < 0.1
+        out[int(k)] = f
+    return out
+
+
 #: Largest difference (degrees) of elevation, azimuth or roll for which two cameras count as
 #: one view (:func:`same_view`): estimated cameras wobble by hundredths of a degree.
 SAME_VIEW_DEG = 0.25

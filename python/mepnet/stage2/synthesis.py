@@ -37,6 +37,7 @@ from mepnet.geom import LDU_PER_CELL, BrickGeomError, placement_box, rotate_latt
 from mepnet.stage2.base import Prediction, Predictor, StepContext
 from mepnet.state import (
     CHANGE_THRESHOLD,
+    SHADE_LEVELS,
     SHADOW_FACTORS,
     change_map,
     darkening,
@@ -45,6 +46,7 @@ from mepnet.state import (
     previous_change,
     same_view,
     shade_classes,
+    shade_factors,
     shade_tones,
     shadowed,
     state_render,
@@ -171,6 +173,10 @@ class Tone(NamedTuple):
     gain: np.ndarray
     bias: np.ndarray
     shadows: bool = False
+    #: per shade level of mepnet's renderer, how much brighter the picture draws faces of that
+    #: level (:func:`mepnet.state.shade_factors`, learnt from the previous picture; None: as
+    #: rendered)
+    factors: np.ndarray | None = None
 
 
 #: Colours compared as rendered.
@@ -178,14 +184,17 @@ PLAIN_TONE = Tone(np.ones(3), np.zeros(3))
 
 
 def base_shades(
-    ctx: StepContext, size: int
-) -> tuple[tuple[np.ndarray, dict[int, np.ndarray]], float] | None:
+    ctx: StepContext, size: int, tone: np.ndarray
+) -> tuple[tuple[np.ndarray, dict[int, np.ndarray]], float, np.ndarray] | None:
     """The base's shade classes seen with the step's camera and their tones
     (:func:`mepnet.state.shade_tones`) learnt from the previous step's picture, which shows the
-    base and nothing else (from any view: lighting follows the camera); and the share of the
+    base and nothing else (from any view: lighting follows the camera); the share of the
     base's pixels that picture draws in shadow (:func:`mepnet.state.shadowed` against those
     tones, in patches: a line is not a shadow), the evidence that the manual's renderer casts
-    shadows. None on a build's first step and when the previous step has no camera."""
+    shadows; and per shade level the factor that picture draws faces of that level at under
+    the step's ``tone`` (:func:`mepnet.state.shade_factors`: one number per level for every
+    colour, so that a step's new parts are compared as the renderer lights them). None on a
+    build's first step and when the previous step has no camera."""
     if not ctx.earlier or len(ctx.base) == 0:
         return None
     prev = ctx.earlier[-1]
@@ -200,7 +209,9 @@ def base_shades(
     dark = shadowed(picture, expected_colours(picture, seen, None, (classes, tones)))
     dark &= ~_max_filter(~dark, SHADOW_PATCH)  # patches, not lines
     share = float(dark[classes >= 0].mean()) if (classes >= 0).any() else 0.0
-    return (shade_classes(ctx.base, ctx.step.camera, size), tones), share  # type: ignore[arg-type]
+    factors = shade_factors(picture, seen, classes, tone)
+    here = shade_classes(ctx.base, ctx.step.camera, size)  # type: ignore[arg-type]
+    return (here, tones), share, factors
 
 
 #: Whether :func:`step_change` takes the base drawn darker, hue kept, for a cast shadow and not
@@ -228,7 +239,7 @@ def step_change(ctx: StepContext, picture: np.ndarray) -> tuple[np.ndarray, Tone
     state, outline = state_render(ctx.base, ctx.step.camera, w)  # type: ignore[arg-type]
     image = picture.transpose(2, 0, 1)
     tone = fit_tone(image, state)
-    shades, evidence = base_shades(ctx, w) or (None, 0.0)
+    shades, evidence, factors = base_shades(ctx, w, tone) or (None, 0.0, None)
     change = change_map(image, state, tone, shades)
     shadows = SHADOWS and shades is not None and evidence > SHADOW_EVIDENCE
     if shadows:
@@ -253,7 +264,29 @@ def step_change(ctx: StepContext, picture: np.ndarray) -> tuple[np.ndarray, Tone
     fill_enclosed(change, picture, ctx, None if before is None else before[0], base_ids)
     if FILL_COVERED:
         fill_covered(change, ctx, base_ids)
-    return change, Tone(tone[0], tone[1], shadows)
+    return change, Tone(tone[0], tone[1], shadows, factors if PART_SHADES else None)
+
+
+#: Whether a step's parts are compared with the picture with each face's brightness as the
+#: manual's renderer draws it (:func:`base_shades`' factors): another renderer lights faces its own way
+#: (LeoCAD draws the faces mepnet shades at 0.62 of their colour at about their full colour), and
+#: a part turned about itself shows other faces.
+PART_SHADES = True
+
+
+#: mepnet's white (colour 15), as :func:`mepnet.state.shade_classes` draws the shape.
+_WHITE = np.asarray(_bg.colour_rgb(15), np.float64)
+
+
+def _shade_level(rgb: np.ndarray, colour: np.ndarray) -> np.ndarray:
+    """Per pixel ((N, 3) as rendered, and the colour of the part drawn there, (N, 3) or (3,)) its
+    shade level (:func:`mepnet.state.shade_classes`): the brightness the part's face is drawn
+    at, relative to its colour, as a white part's face would be drawn."""
+    s = rgb.astype(np.float64).sum(axis=-1) / np.maximum(
+        np.asarray(colour, np.float64).sum(axis=-1), 1.0
+    )
+    white = np.minimum(s[..., None] * _WHITE, 255.0).mean(axis=-1)
+    return np.clip(np.rint(white / 255.0 * SHADE_LEVELS), 0, SHADE_LEVELS).astype(np.intp)
 
 
 #: Whether :func:`step_change` marks as changed what :func:`fill_covered` finds.
@@ -838,6 +871,22 @@ def _solve(
             )
             if alt_score > score + 1e-6:
                 preds, score, taken = alt_preds, alt_score, alt_taken
+    # each part moved along the view ray: drawn at (nearly) the same pixels, mostly hidden, so
+    # only what it hides or is hidden by tells; the change map has nothing of the true place,
+    # so no round ranks it
+    rays = _ray_shifts(ctx.camera, w, h) if RAY_SHIFTS and len(taken) == total else []
+    for level in range(len(taken)) if rays else ():
+        if score >= CLOSE or _clock() >= deadline:
+            break
+        i, yaw, tr = taken[level]
+        for d in rays:
+            moved = (i, yaw, (tr[0] + d[0], tr[1] + d[1], tr[2] + d[2]))
+            # last: moved up, it may stand on a part placed after it
+            alt_preds, alt_taken, _, alt_score = attempt(
+                [*taken[:level], *taken[level + 1 :], moved]
+            )
+            if alt_score > score + 1e-6:
+                preds, score, taken = alt_preds, alt_score, alt_taken
     # the step's parts turned together about the middle of the box they fill, where turned
     # they fill the same box (two 1x2 bricks side by side make a 2x2 column either way round:
     # only the seam between them tells)
@@ -890,6 +939,25 @@ def _turns(
     return out
 
 
+def _ray_shifts(camera: _bg.Camera, w: int, h: int) -> list[tuple[int, int, int]]:
+    """Lattice moves (within :data:`RAY_REACH`) that the camera draws within :data:`RAY_PX` of a
+    stud's width of where they start: a part moved by one lies along the view ray, at (nearly)
+    the same pixels; the :data:`RAY_SHIFT_COUNT` shortest on the picture, shortest first."""
+    m = np.asarray(camera.pixel_matrix(w, h), dtype=float)[:, :3]
+    stud = min(float(np.hypot(*(m[:, a] * 20.0))) for a in (0, 2))
+    out = []
+    for dx in range(-RAY_REACH[0], RAY_REACH[0] + 1):
+        for dz in range(-RAY_REACH[0], RAY_REACH[0] + 1):
+            for dy in range(-RAY_REACH[1], RAY_REACH[1] + 1):
+                if (dx, dy, dz) == (0, 0, 0):
+                    continue
+                px = float(np.hypot(*(m @ np.array([10.0 * dx, 8.0 * dy, 10.0 * dz]))))
+                if px <= RAY_PX * stud:
+                    out.append((px, (dx, dy, dz)))
+    out.sort()
+    return [d for _, d in out[:RAY_SHIFT_COUNT]]
+
+
 def _step_turns(types: list[SynthesisType], taken: list[First]) -> list[list[First]]:
     """A step's decisions turned together by each other quarter turn about the vertical,
     moved back into the box they filled; those that fill another box left out."""
@@ -933,6 +1001,16 @@ CLOSE = 0.99
 #: Whether a step explained worse than :data:`CLOSE` has each of its parts turned about itself
 #: (another yaw, the same cells: :func:`_turns`) (:func:`_solve`).
 TURNS = True
+#: Whether a step explained worse than :data:`CLOSE` has each of its parts moved along the view
+#: ray (:func:`_ray_shifts`) (:func:`_solve`): a part drawn at the same pixels nearer or farther
+#: (the upper of two equal parts stacked, put low down behind the model instead).
+RAY_SHIFTS = True
+#: A move drawn within this share of a stud's width on the picture lies along the view ray.
+RAY_PX = 0.35
+#: The farthest move looked at (lattice units: half-studs across, plates up or down), and how
+#: many of the moves drawn shortest are tried.
+RAY_REACH = (6, 12)
+RAY_SHIFT_COUNT = 4
 #: ... and all its parts turned together about the box they fill, where they fill it turned
 #: (:func:`_step_turns`).
 STEP_TURNS = True
@@ -1200,12 +1278,17 @@ SHADOW_RESIDUAL = True
 SHADOW_COST = 0.03
 
 
-def _colour_off(picture: np.ndarray, rgb: np.ndarray, tone: Tone) -> np.ndarray:
+def _colour_off(
+    picture: np.ndarray, rgb: np.ndarray, tone: Tone, colour: np.ndarray | None = None
+) -> np.ndarray:
     """Per pixel ((N, 3): the picture's colours in [0, 1] and mepnet's rendered ones, uint8) the
     largest channel difference after the tone fit; where the renderer casts shadows, no more
     than the colour darkened by a factor in :data:`mepnet.state.SHADOW_FACTORS` differs, plus
     :data:`SHADOW_COST`."""
-    expected = rgb / 255.0 * tone.gain + tone.bias
+    drawn = rgb / 255.0
+    if tone.factors is not None and colour is not None:
+        drawn = np.minimum(drawn * tone.factors[_shade_level(rgb, colour)][:, None], 1.0)
+    expected = drawn * tone.gain + tone.bias
     off = np.abs(picture - expected).max(axis=1)
     if tone.shadows and SHADOW_RESIDUAL:
         f = np.clip(darkening(picture, expected, axis=1), *SHADOW_FACTORS)
@@ -1241,7 +1324,7 @@ def _explained(
     union = int((new | mask).sum())
     off = None  # per pixel the parts draw: the largest channel difference from the picture
     if picture is not None and new.any():
-        off = _colour_off(picture[new], r.rgb[new], tone)
+        off = _colour_off(picture[new], r.rgb[new], tone, _instance_colours(asm)[r.ids[new]])
         if QUIET_LEVEL > 0:
             # a part drawn in the picture's own colour where the picture did not change (in
             # front of a part of its colour) is no evidence against it: out of the IoU
@@ -1264,6 +1347,13 @@ class _Drawn:
     own: np.ndarray
     depth: np.ndarray
     rgb: np.ndarray
+
+
+def _instance_colours(asm: _bg.Assembly) -> np.ndarray:
+    """(N, 3): the rgb of each of ``asm``'s instances, in order."""
+    return np.array([_bg.colour_rgb(asm.colour(i)) for i in range(len(asm))], np.float64).reshape(
+        -1, 3
+    )
 
 
 def _draw_alone(
@@ -1319,6 +1409,7 @@ def _greedy(
     left = [t.count for t in types]
     unexplained = np.ones((h, w), dtype=bool)
     colours = [ctx.colour(t.entry) for t in types]
+    rgb_of = [np.asarray(_bg.colour_rgb(c), np.float64) for c in colours]
     preds: list[Prediction] = []
     taken: list[First] = []
     options: list[list[First]] = []
@@ -1384,7 +1475,7 @@ def _greedy(
                     if 0 <= x < w and 0 <= y < h:
                         score += KEYPOINT_WEIGHT * float(t.heat[int(y), int(x)])
                 if vis.any() and picture is not None:
-                    diff = _colour_off(picture[box][vis], d.rgb[vis], tone)
+                    diff = _colour_off(picture[box][vis], d.rgb[vis], tone, rgb_of[i])
                     score -= COLOUR_WEIGHT * float(diff.mean())
                 ranked_here.append((score, (i, yaw, tr)))
                 if best is None or score > best[0]:
