@@ -944,18 +944,13 @@ def _ray_shifts(camera: _bg.Camera, w: int, h: int) -> list[tuple[int, int, int]
     stud's width of where they start: a part moved by one lies along the view ray, at (nearly)
     the same pixels; the :data:`RAY_SHIFT_COUNT` shortest on the picture, shortest first."""
     m = np.asarray(camera.pixel_matrix(w, h), dtype=float)[:, :3]
-    stud = min(float(np.hypot(*(m[:, a] * 20.0))) for a in (0, 2))
-    out = []
-    for dx in range(-RAY_REACH[0], RAY_REACH[0] + 1):
-        for dz in range(-RAY_REACH[0], RAY_REACH[0] + 1):
-            for dy in range(-RAY_REACH[1], RAY_REACH[1] + 1):
-                if (dx, dy, dz) == (0, 0, 0):
-                    continue
-                px = float(np.hypot(*(m @ np.array([10.0 * dx, 8.0 * dy, 10.0 * dz]))))
-                if px <= RAY_PX * stud:
-                    out.append((px, (dx, dy, dz)))
-    out.sort()
-    return [d for _, d in out[:RAY_SHIFT_COUNT]]
+    stud = min(float(np.hypot(*(m[:, a] * 2.0 * LDU_PER_CELL[a]))) for a in (0, 2))
+    across, up = range(-RAY_REACH[0], RAY_REACH[0] + 1), range(-RAY_REACH[1], RAY_REACH[1] + 1)
+    moves = np.array([(dx, dy, dz) for dx in across for dy in up for dz in across])
+    moves = moves[np.any(moves != 0, axis=1)]
+    px = np.hypot(*(m @ (moves * LDU_PER_CELL).T))
+    order = [i for i in np.argsort(px, kind="stable") if px[i] <= RAY_PX * stud]
+    return [tuple(int(v) for v in moves[i]) for i in order[:RAY_SHIFT_COUNT]]  # type: ignore[misc]
 
 
 def _step_turns(types: list[SynthesisType], taken: list[First]) -> list[list[First]]:
@@ -1324,7 +1319,7 @@ def _explained(
     union = int((new | mask).sum())
     off = None  # per pixel the parts draw: the largest channel difference from the picture
     if picture is not None and new.any():
-        off = _colour_off(picture[new], r.rgb[new], tone, _instance_colours(asm)[r.ids[new]])
+        off = _colour_off(picture[new], r.rgb[new], tone, _part_colours(asm, n0)[r.ids[new] - n0])
         if QUIET_LEVEL > 0:
             # a part drawn in the picture's own colour where the picture did not change (in
             # front of a part of its colour) is no evidence against it: out of the IoU
@@ -1349,11 +1344,12 @@ class _Drawn:
     rgb: np.ndarray
 
 
-def _instance_colours(asm: _bg.Assembly) -> np.ndarray:
-    """(N, 3): the rgb of each of ``asm``'s instances, in order."""
-    return np.array([_bg.colour_rgb(asm.colour(i)) for i in range(len(asm))], np.float64).reshape(
-        -1, 3
-    )
+def _part_colours(asm: _bg.Assembly, n0: int) -> np.ndarray:
+    """(N, 3): the rgb of each of ``asm``'s instances from the ``n0``-th on (a step's parts on
+    its base), in order."""
+    return np.array(
+        [_bg.colour_rgb(asm.colour(i)) for i in range(n0, len(asm))], np.float64
+    ).reshape(-1, 3)
 
 
 def _draw_alone(
