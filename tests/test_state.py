@@ -13,7 +13,7 @@ from mepnet.manual import answers_of, iter_manual_dirs, load_manual
 from mepnet.manual.page import make_camera
 from mepnet.stage2.base import EarlierStep, StepContext
 from mepnet.stage2.synthesis import step_change, step_picture
-from mepnet.state import CHANGE_THRESHOLD, same_view, warp_previous
+from mepnet.state import CHANGE_THRESHOLD, previous_change, same_view, warp_previous
 
 
 def _shape() -> _bg.Assembly:
@@ -44,6 +44,33 @@ def test_a_zoomed_and_panned_picture_is_the_previous_one_warped():
     wrong = warp_previous(before, CAM, dict(zoomed, translation=[-0.12, 0.08]), 256)
     fg_x = wrong.min(axis=0) < 0.9  # type: ignore[union-attr]
     assert (fg_x & fg_a).sum() / (fg_x | fg_a).sum() < 0.8
+
+
+def test_the_previous_picture_zoomed_differs_only_where_a_part_was_added():
+    """The previous picture zoomed and panned onto this step's view draws its lines and edges up
+    to a pixel away (bilinear resampling): compared pixel for pixel, those lines read as
+    change all over the base; looked for within a pixel, only the new part's area changes."""
+    asm = _shape()
+    zoomed = dict(CAM, scale=0.0089, translation=[0.031, -0.017])
+    before = _picture(asm, CAM)
+    warped = warp_previous(before, CAM, zoomed, 256)
+    assert warped is not None
+    n0 = len(asm)
+    asm.add(_bg.Component.primitive("3024"), 0, (-2, 9, 0), 14)  # a yellow 1x1 plate on top
+    r = _bg.render(asm, make_camera(zoomed), 256, 256)
+    after = r.rgb.transpose(2, 0, 1) / 255.0
+    new = r.ids >= n0
+    inner = new & ~np.pad(~new, 1, constant_values=True)[2:, 1:-1]  # not on its lower edge
+    inner &= ~np.pad(~new, 1, constant_values=True)[:-2, 1:-1]
+    inner &= ~np.pad(~new, 1, constant_values=True)[1:-1, 2:]
+    inner &= ~np.pad(~new, 1, constant_values=True)[1:-1, :-2]
+    assert inner.sum() > 30
+    exact = previous_change(after, warped, reach=0) > CHANGE_THRESHOLD
+    near = previous_change(after, warped) > CHANGE_THRESHOLD
+    false_exact, false_near = int((exact & ~new).sum()), int((near & ~new).sum())
+    assert false_exact > 100  # the resampled lines
+    assert false_near < false_exact / 4
+    assert near[inner].mean() > 0.95  # the new part's inside stays changed
 
 
 def test_another_view_is_not_warped():

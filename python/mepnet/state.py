@@ -370,9 +370,44 @@ def warp_previous(
     return out
 
 
-def previous_change(image: np.ndarray, previous: np.ndarray) -> np.ndarray:
+#: How far (pixels) :func:`previous_change` looks for the previous picture's colour: that
+#: picture, zoomed and panned onto this step's view by bilinear resampling, draws its lines and
+#: anti-aliased edges up to a pixel away and blurred (0: compared pixel for pixel).
+PREVIOUS_REACH = 1
+#: ... where the step's picture differs by more than this (largest channel) within that reach.
+PREVIOUS_EDGE = 0.15
+
+
+def previous_change(
+    image: np.ndarray, previous: np.ndarray, reach: int | None = None
+) -> np.ndarray:
     """Where the step's ``image`` differs from the previous picture seen with its camera
     (:func:`warp_previous`; both (3, H, W) in [0, 1]), (H, W): the largest absolute channel
     difference, after a tone fit as :func:`change_map` (a manual's renderer is consistent
-    within the manual, so this is usually the identity)."""
-    return change_map(image, previous)
+    within the manual, so this is usually the identity), from the closest of the previous
+    picture's pixels within ``reach`` (default :data:`PREVIOUS_REACH`) of it: a new part
+    changes its whole area, a resampled line only where it lies."""
+    reach = PREVIOUS_REACH if reach is None else reach
+    expected = expected_colours(image, previous)
+    out = np.abs(image - expected).max(axis=0)
+    if reach > 0:
+        h, w = out.shape
+        pad = np.pad(expected, ((0, 0), (reach, reach), (reach, reach)), mode="edge")
+        own = np.pad(image, ((0, 0), (reach, reach), (reach, reach)), mode="edge")
+        near = out.copy()
+        contrast = np.zeros_like(out)
+        for dy in range(-reach, reach + 1):
+            for dx in range(-reach, reach + 1):
+                if dy or dx:
+                    rows, cols = (
+                        slice(reach + dy, reach + dy + h),
+                        slice(reach + dx, reach + dx + w),
+                    )
+                    np.minimum(near, np.abs(image - pad[:, rows, cols]).max(axis=0), out=near)
+                    np.maximum(
+                        contrast, np.abs(image - own[:, rows, cols]).max(axis=0), out=contrast
+                    )
+        # only where the step's picture itself has an edge or a line: inside a flat face the
+        # resampling is exact, and a new part's face beside an old edge stays changed
+        out = np.where(contrast > PREVIOUS_EDGE, near, out)
+    return np.clip(out, 0.0, 1.0).astype(np.float32)
