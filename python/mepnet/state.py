@@ -376,6 +376,7 @@ def warp_previous(
 PREVIOUS_REACH = 1
 #: ... where the step's picture differs by more than this (largest channel) within that reach.
 PREVIOUS_EDGE = 0.15
+PREVIOUS_KEEP_EDGE = True
 
 
 def previous_change(
@@ -408,6 +409,16 @@ def previous_change(
                         contrast, np.abs(image - own[:, rows, cols]).max(axis=0), out=contrast
                     )
         # only where the step's picture itself has an edge or a line: inside a flat face the
-        # resampling is exact, and a new part's face beside an old edge stays changed
-        out = np.where(contrast > PREVIOUS_EDGE, near, out)
+        # resampling is exact, and a new part's face beside an old edge stays changed; and not
+        # next to what changed even so: a new part's own outline is no resampled line
+        moved = contrast > PREVIOUS_EDGE
+        if PREVIOUS_KEEP_EDGE:
+            changed = near > CHANGE_THRESHOLD
+            grown = changed.copy()
+            grown[1:] |= changed[:-1]
+            grown[:-1] |= changed[1:]
+            grown[:, 1:] |= changed[:, :-1]
+            grown[:, :-1] |= changed[:, 1:]
+            moved &= ~grown
+        out = np.where(moved, near, out)
     return np.clip(out, 0.0, 1.0).astype(np.float32)
