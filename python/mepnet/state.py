@@ -376,6 +376,8 @@ def warp_previous(
 PREVIOUS_REACH = 1
 #: ... where the step's picture differs by more than this (largest channel) within that reach.
 PREVIOUS_EDGE = 0.15
+#: ... and not at a pixel next to one that differs from every colour within reach: a new
+#: part's own outline (off: the reach there too, which costs right steps their confidence).
 PREVIOUS_KEEP_EDGE = True
 
 
