@@ -731,6 +731,49 @@ def test_a_part_turned_about_itself_is_tried(tmp_path: Path, monkeypatch: pytest
     assert any(comp.same_placement(wrong.yaw, wrong.t, y, t) for y, t in turned)
 
 
+def test_a_step_explained_poorly_scores_more_placements(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+):
+    """A slope whose true place ranks low by its overlap with the change (another renderer's
+    picture of a part on a base of its colour changes only along outlines): the placement
+    search made to rank it 13th, past the ``RANKED`` a round scores. The step, explained
+    poorly, is solved again with ``DEEP_RANKED`` scored a round, and the true place wins."""
+    import mepnet.stage2.synthesis as synthesis
+    from mepnet import _brickgeom as _bg
+
+    m = load_manual(manual_from_ldraw(SLOPE_ON_BRICK, tmp_path))
+    run = run_manual(m, make_predictor("synthesis"), teacher_forced=True)
+    assert step_matches(run, run.main.steps[-1]) == 1
+    (right,) = run.main.steps[-1].predictions
+    comp = run.components[right.component]
+    real = _bg.abys_ranked
+
+    def truth_late(asm, cam, w, h, component, mask, k, *rest, **kwargs):  # type: ignore[no-untyped-def]
+        ranked, timed_out = real(asm, cam, w, h, component, mask, 10_000, *rest, **kwargs)
+        true = [r for r in ranked if comp.same_placement(r[0], r[1], right.yaw, right.t)]
+        others, seen = [], []
+        for r in ranked:  # one of each distinct placement, so that the true one is 13th
+            if r not in true and not any(comp.same_placement(r[0], r[1], y, t) for y, t, _ in seen):
+                seen.append(r)
+                others.append(r)
+        if not true or len(others) < 12:  # the brick under it, or a search that misses it
+            return ranked[:k], timed_out
+        return (others[:12] + true + others[12:])[:k], timed_out
+
+    monkeypatch.setattr(synthesis._bg, "abys_ranked", truth_late)
+    for flag in ("TURNS", "RAY_SHIFTS", "RELOCATE", "STEP_TURNS", "COLUMNS"):
+        monkeypatch.setattr(synthesis, flag, False)  # no other way to the true place
+    assert synthesis.RANKED < 13 <= synthesis.DEEP_RANKED
+    # on our own picture the wrong places explain it better than another renderer's: the
+    # threshold as high as the search wherever the picture changed
+    monkeypatch.setattr(synthesis, "DEEP_BELOW", synthesis.WIDE_BELOW)
+    found = run_manual(m, make_predictor("synthesis"), teacher_forced=True)
+    assert step_matches(found, found.main.steps[-1]) == 1
+    monkeypatch.setattr(synthesis, "DEEP_BELOW", float("-inf"))
+    stuck = run_manual(m, make_predictor("synthesis"), teacher_forced=True)
+    assert step_matches(stuck, stuck.main.steps[-1]) == 0
+
+
 def test_moves_along_the_view_ray_are_drawn_in_place():
     """``_ray_shifts``: the lattice moves a part can make without moving on the picture (it
     goes nearer or farther along the view ray), shortest on the picture first, both ways; from
