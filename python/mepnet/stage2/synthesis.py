@@ -454,7 +454,9 @@ def synthesize(
     again last so (:data:`WIDE_ON_GROUND`). Such a solution is kept when it explains the
     picture better: by any amount when it stands no more parts on the ground, none apart from
     the base (:func:`_apart`), else by :data:`WIDE_MARGIN`, and then only if each part it
-    stands apart shows itself (:func:`_hidden_on_ground`).
+    stands apart shows itself (:func:`_hidden_on_ground`). Explained worse than
+    :data:`DEEP_BELOW` even so, the step is solved once more with :data:`DEEP_RANKED`
+    placements scored a round, and that solution kept on the same terms.
 
     The step's budget (CPU seconds): once it is spent, no decision is revisited and the ground
     is not searched again; the greedy under way is finished, each of its remaining placement searches
