@@ -752,10 +752,11 @@ def test_a_step_explained_poorly_scores_more_placements(
     def truth_late(asm, cam, w, h, component, mask, k, *rest, **kwargs):  # type: ignore[no-untyped-def]
         ranked, timed_out = real(asm, cam, w, h, component, mask, 10_000, *rest, **kwargs)
         true = [r for r in ranked if comp.same_placement(r[0], r[1], right.yaw, right.t)]
-        others, seen = [], []
+        others: list = []
         for r in ranked:  # one of each distinct placement, so that the true one is 13th
-            if r not in true and not any(comp.same_placement(r[0], r[1], y, t) for y, t, _ in seen):
-                seen.append(r)
+            if r not in true and not any(
+                comp.same_placement(r[0], r[1], y, t) for y, t, _ in others
+            ):
                 others.append(r)
         if not true or len(others) < 12:  # the brick under it, or a search that misses it
             return ranked[:k], timed_out

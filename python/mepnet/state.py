@@ -381,6 +381,16 @@ PREVIOUS_EDGE = 0.15
 PREVIOUS_KEEP_EDGE = True
 
 
+def grown_4(mask: np.ndarray) -> np.ndarray:
+    """``mask`` (H, W) bool grown by one pixel to its 4-neighbours."""
+    out = mask.copy()
+    out[1:] |= mask[:-1]
+    out[:-1] |= mask[1:]
+    out[:, 1:] |= mask[:, :-1]
+    out[:, :-1] |= mask[:, 1:]
+    return out
+
+
 def previous_change(
     image: np.ndarray, previous: np.ndarray, reach: int | None = None
 ) -> np.ndarray:
@@ -415,12 +425,6 @@ def previous_change(
         # next to what changed even so: a new part's own outline is no resampled line
         moved = contrast > PREVIOUS_EDGE
         if PREVIOUS_KEEP_EDGE:
-            changed = near > CHANGE_THRESHOLD
-            grown = changed.copy()
-            grown[1:] |= changed[:-1]
-            grown[:-1] |= changed[1:]
-            grown[:, 1:] |= changed[:, :-1]
-            grown[:, :-1] |= changed[:, 1:]
-            moved &= ~grown
+            moved &= ~grown_4(near > CHANGE_THRESHOLD)
         out = np.where(moved, near, out)
     return np.clip(out, 0.0, 1.0).astype(np.float32)

@@ -43,6 +43,7 @@ from mepnet.state import (
     darkening,
     expected_colours,
     fit_tone,
+    grown_4,
     previous_change,
     same_view,
     shade_classes,
@@ -383,12 +384,7 @@ def _reconstruct(seed: np.ndarray, within: np.ndarray) -> np.ndarray:
     grown = np.zeros_like(within)
     front = seed.copy()
     while True:
-        near = front.copy()
-        near[1:] |= front[:-1]
-        near[:-1] |= front[1:]
-        near[:, 1:] |= front[:, :-1]
-        near[:, :-1] |= front[:, 1:]
-        new = near & within & ~grown
+        new = grown_4(front) & within & ~grown
         if not new.any():
             return grown
         grown |= new
