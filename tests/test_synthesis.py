@@ -1077,3 +1077,61 @@ def test_a_single_part_a_cell_off_is_moved_only_when_asked(
     assert _main_step(folder, 13) == (0, 1)
     monkeypatch.setattr(synthesis, "SHIFT_MIN_PARTS", 1)
     assert _main_step(folder, 13) == (1, 1)
+
+
+def test_a_part_placed_where_nothing_of_it_is_drawn_explains_as_little_as_one_not_placed(
+    stack: Path, monkeypatch: pytest.MonkeyPatch
+):
+    """A manual draws what each step adds. The top round brick of the stack put on the ground
+    behind the column (in the picture's frame, every pixel of it hidden) explains the step no
+    better than leaving it out (:data:`HIDDEN_COST`); without that cost it explained it better,
+    so a hidden placement beat every visible one that drew a few wrong pixels."""
+    import mepnet.stage2.synthesis as synthesis
+    from mepnet import _brickgeom as _bg
+    from mepnet.manual import answers_of
+    from mepnet.stage2 import StepContext
+    from mepnet.stage2.base import Prediction
+
+    m = load_manual(stack)
+    answers = answers_of(m)
+    comps = answers.components(m)
+    ctx = StepContext(m.main.steps[1], answers.main.assembly_before(1, comps), comps, m.image_size)
+    w, h = m.image_size
+    truth = sorted(answers.main.truth(1).placed(), key=lambda i: i.t[1])
+    comp = comps[truth[2].component]
+    below = [Prediction(0, i.component, i.yaw, tuple(i.t)) for i in truth[:2]]
+
+    def hidden(t: tuple[int, int, int]) -> bool:  # on the model's ground, in frame, unseen
+        try:
+            if ctx.base.check(comp, 0, t) != "ground":
+                return False
+        except _bg.CollisionError:
+            return False
+        alone = _bg.Assembly()
+        alone.add(comp, 0, t, 4)
+        if not (_bg.render(alone, ctx.camera, w, h).ids == 0).any():
+            return False
+        drawn = _bg.render(
+            synthesis._with_parts(ctx, [*below, Prediction(0, truth[2].component, 0, t)]),
+            ctx.camera,
+            w,
+            h,
+        )
+        return not (drawn.ids == len(ctx.base) + 2).any()
+
+    spots = [(x, 3, z) for x in range(-8, 9, 2) for z in range(-8, 9, 2) if hidden((x, 3, z))]
+    assert spots, "no placement behind the column"
+    picture = synthesis.step_picture(ctx)
+    change, tone = synthesis.step_change(ctx, picture)
+    mask, edges = change > synthesis.CHANGE_THRESHOLD, synthesis.edge_map(picture)
+
+    def explained(top: Prediction) -> float:
+        return synthesis._explained(ctx, [*below, top], mask, picture, tone, edges)
+
+    behind = Prediction(0, truth[2].component, 0, spots[0])
+    left_out = Prediction(0, truth[2].component, None, None)
+    right = Prediction(0, truth[2].component, truth[2].yaw, tuple(truth[2].t))
+    assert explained(behind) == pytest.approx(explained(left_out))
+    assert explained(right) > explained(left_out) + 0.3
+    monkeypatch.setattr(synthesis, "HIDDEN_COST", 0.0)
+    assert explained(behind) > explained(left_out) + 0.1

@@ -1325,6 +1325,11 @@ def _colour_off(
 #: :func:`_explained`'s IoU (0: counts against).
 QUIET_LEVEL = 0.1
 
+#: A step's part placed where nothing of it is drawn (hidden behind the base or the step's other
+#: parts) costs this share of :func:`_explained`'s score, as a part not placed does: a manual
+#: shows what each step adds, so a placement the picture cannot show is no explanation of it.
+HIDDEN_COST = 0.5
+
 
 def _explained(
     ctx: StepContext,
@@ -1358,7 +1363,11 @@ def _explained(
     if picture_edges is not None and union and EDGE_WEIGHT:
         unseen, undrawn = _edge_disagreement(ctx, asm, r.rgb, new, mask, picture_edges)
         score -= (EDGE_WEIGHT * undrawn + SHOWN_EDGE_WEIGHT * unseen) / union
-    return score - 0.5 * sum(1 for p in preds if not p.placed) / max(len(preds), 1)
+    missing = sum(1 for p in preds if not p.placed)
+    if HIDDEN_COST:
+        seen = np.unique(r.ids[new]) if new.any() else np.zeros(0, np.int64)
+        missing += HIDDEN_COST / 0.5 * (len(asm) - n0 - len(seen))
+    return score - 0.5 * missing / max(len(preds), 1)
 
 
 @dataclass(frozen=True)
