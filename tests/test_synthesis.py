@@ -53,8 +53,9 @@ def stack(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def _earlier_revisits(monkeypatch: pytest.MonkeyPatch, choices: int | None = None) -> None:
     """Stage 2's revisits as they were before stop 39 (no pairs, the first decision revisited
     like the others, forced decisions without choices; ``choices``: at every decision; and no
-    relocation of hidden parts, stop 44), so that a test shows what the mechanism it is about
-    buys on its own."""
+    relocation of hidden parts, stop 44; no later decisions of the revisits' solution taken
+    first, and a placed part explaining every pixel it is drawn at, stop 50), so that a test
+    shows what the mechanism it is about buys on its own."""
     import mepnet.stage2.synthesis as synthesis
 
     if choices is not None:
@@ -63,6 +64,8 @@ def _earlier_revisits(monkeypatch: pytest.MonkeyPatch, choices: int | None = Non
     monkeypatch.setattr(synthesis, "PAIRS", False)
     monkeypatch.setattr(synthesis, "REVISIT_FORCED", False)
     monkeypatch.setattr(synthesis, "RELOCATE", False)
+    monkeypatch.setattr(synthesis, "LATER_FIRST_AGAIN", False)
+    monkeypatch.setattr(synthesis, "CLAIM_OFF", float("inf"))
 
 
 def test_a_stack_of_equal_parts_is_solved_as_a_whole(stack: Path, monkeypatch: pytest.MonkeyPatch):
@@ -607,6 +610,7 @@ def test_two_parts_each_at_the_others_place_are_swapped_back(
     assert hits >= 4
     monkeypatch.setattr(synthesis, "PAIRS", False)
     monkeypatch.setattr(synthesis, "DEEP_BELOW", float("-inf"))  # which also mends it
+    monkeypatch.setattr(synthesis, "CLAIM_OFF", float("inf"))  # and so does this
     hits, n = _main_step(fresh / "manual_00930011", 5)
     assert hits <= 3
 
@@ -868,6 +872,9 @@ def test_a_part_apart_that_took_another_parts_place_is_moved_with_it(
 
     assert _main_step(study / "manual_00980007", 7) == (6, 6)
     monkeypatch.setattr(synthesis, "WIDE_BELOW", 0.8)
+    # (a placed part explaining only the pixels it draws in the picture's colour, ``CLAIM_OFF``,
+    # mends one of the two on its own)
+    monkeypatch.setattr(synthesis, "CLAIM_OFF", float("inf"))
     assert _main_step(study / "manual_00980007", 7) == (4, 6)
 
 
@@ -952,6 +959,7 @@ def test_a_hidden_part_is_placed_again_where_the_picture_is_unexplained(
 
     assert _main_step(study21 / "manual_00990018", 2) == (5, 5)
     monkeypatch.setattr(synthesis, "RELOCATE", False)
+    monkeypatch.setattr(synthesis, "CLAIM_OFF", float("inf"))  # which mends it on its own too
     assert _main_step(study21 / "manual_00990018", 2) == (4, 5)
 
 
@@ -1135,3 +1143,42 @@ def test_a_part_placed_where_nothing_of_it_is_drawn_explains_as_little_as_one_no
     assert explained(right) > explained(left_out) + 0.3
     monkeypatch.setattr(synthesis, "HIDDEN_COST", 0.0)
     assert explained(behind) > explained(left_out) + 0.1
+
+
+@pytest.fixture(scope="module")
+def study23(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Three manuals of F20h (seed 1070000; measured at stop 50's start, a study set since)
+    drawn again."""
+    return _drawn_again(tmp_path_factory, "study23", (1070001, 1070008, 1070013))
+
+
+def test_what_the_revisits_found_is_also_taken_first(
+    study23: Path, monkeypatch: pytest.MonkeyPatch
+):
+    """F20h manual 1 step 5: two 3x2 slopes side by side. One turned across both ranks first;
+    taken first, each greedy decision after it fills what is left, and the revisits put one
+    true slope after the turned one (0.81). That slope taken first finds the other (1.0):
+    :data:`LATER_FIRST_AGAIN` takes the later decisions of what the revisits found first too."""
+    import mepnet.stage2.synthesis as synthesis
+
+    assert _main_step(study23 / "manual_01070001", 5) == (2, 2)
+    monkeypatch.setattr(synthesis, "LATER_FIRST_AGAIN", False)
+    assert _main_step(study23 / "manual_01070001", 5)[0] < 2
+
+
+@pytest.mark.parametrize(("manual", "step"), [(13, 5), (8, 21)])
+def test_a_part_placed_first_leaves_a_part_in_front_of_it_its_pixels(
+    study23: Path, monkeypatch: pytest.MonkeyPatch, manual: int, step: int
+):
+    """F20h manual 13 step 5: a lime slope and a row of three grey 1x1 plates hung in front of
+    it. The slope placed first was drawn where the plates are, and those pixels counted as
+    explained, so no later round saw the plates' place: one plate went under another (0.88
+    against the truth's 1.0). A placed part now explains only the pixels it draws in about the
+    picture's colour (:data:`CLAIM_OFF`). Manual 8 step 21 alike (a slope, a plate, a tile)."""
+    import mepnet.stage2.synthesis as synthesis
+
+    folder = study23 / f"manual_0107{manual:04d}"
+    hits, n = _main_step(folder, step)
+    assert hits == n
+    monkeypatch.setattr(synthesis, "CLAIM_OFF", float("inf"))
+    assert _main_step(folder, step)[0] < n

@@ -806,9 +806,11 @@ def _solve(
     # a later decision taken first: a part that shows little until what stands on it is
     # placed (the bottom brick of a stack, hidden by the top one) is never among the first
     # choices, and the top one is not valid before it
+    led: set[First] = set(taken[:1])  # the decisions tried first on their own
     for later in list(taken[1:]) if LATER_FIRST else []:
         if score >= WELL_EXPLAINED or _clock() >= deadline:
             break
+        led.add(later)
         alt_preds, alt_taken, alt_options, alt_score = attempt([later])
         if alt_score > score + 1e-6:
             preds, score, taken, options = alt_preds, alt_score, alt_taken, alt_options
@@ -821,11 +823,24 @@ def _solve(
                 break
             if alt == taken[level]:
                 continue
+            if level == 0:
+                led.add(alt)
             alt_preds, alt_taken, alt_options, alt_score = attempt([*taken[:level], alt])
             if alt_score > score + 1e-6:
                 preds, score, taken = alt_preds, alt_score, alt_taken
                 options = options[: level + 1] + alt_options[level + 1 :]
         level += 1
+    # the later decisions of what the revisits found, taken first too (:data:`LATER_FIRST_AGAIN`):
+    # of two slopes side by side, one turned across the middle of both ranks first; a revisit
+    # puts one slope right after it, and that slope taken first finds the other
+    while LATER_FIRST_AGAIN and score < WELL_EXPLAINED and _clock() < deadline:
+        fresh = [f for f in taken[1:] if f not in led]
+        if not fresh:
+            break
+        led.add(fresh[0])
+        alt_preds, alt_taken, alt_options, alt_score = attempt([fresh[0]])
+        if alt_score > score + 1e-6:
+            preds, score, taken, options = alt_preds, alt_score, alt_taken, alt_options
     # each pair of decisions taken again in the context of all the others: two parts each at
     # the other's place (the greedy placed the first where the second belongs, and the second
     # fitted what was left) are no single decision's next choice
@@ -1049,6 +1064,9 @@ WELL_EXPLAINED = 0.97
 #: Whether a multi-instance step explained worse is also solved with each later decision of
 #: the greedy taken first (:func:`_solve`).
 LATER_FIRST = True
+#: ... and the later decisions of the solution the revisits found too (each decision tried
+#: first on its own once).
+LATER_FIRST_AGAIN = True
 #: Choices tried at each decision of a multi-instance step explained worse (the greedy's own
 #: included).
 FIRST_CHOICES = 3
@@ -1363,11 +1381,11 @@ def _explained(
     if picture_edges is not None and union and EDGE_WEIGHT:
         unseen, undrawn = _edge_disagreement(ctx, asm, r.rgb, new, mask, picture_edges)
         score -= (EDGE_WEIGHT * undrawn + SHOWN_EDGE_WEIGHT * unseen) / union
-    missing = sum(1 for p in preds if not p.placed)
+    cost = 0.5 * sum(1 for p in preds if not p.placed)
     if HIDDEN_COST:
         seen = np.unique(r.ids[new]) if new.any() else np.zeros(0, np.int64)
-        missing += HIDDEN_COST / 0.5 * (len(asm) - n0 - len(seen))
-    return score - 0.5 * missing / max(len(preds), 1)
+        cost += HIDDEN_COST * (len(asm) - n0 - len(seen))
+    return score - cost / max(len(preds), 1)
 
 
 @dataclass(frozen=True)
@@ -1412,6 +1430,13 @@ def _draw_alone(
     return _Drawn(box, own[box], r.depth[box], r.rgb[box])
 
 
+#: A placed part explains the changed pixels it is drawn in front at for the greedy's later
+#: rounds only where it draws them within this much of the picture's colour (largest channel,
+#: in [0, 1], after the tone fit; inf: wherever it is drawn): a part placed first may stand
+#: behind one of a later round, which the picture shows in front of it in another colour.
+CLAIM_OFF = 0.3
+
+
 def _greedy(
     ctx: StepContext,
     types: list[SynthesisType],
@@ -1440,6 +1465,7 @@ def _greedy(
     w, h = ctx.image_size
     drawn = {} if drawn is None else drawn
     asm = ctx.base.copy()
+    n0 = len(asm)
     cam = ctx.camera
     left = [t.count for t in types]
     unexplained = np.ones((h, w), dtype=bool)
@@ -1471,7 +1497,24 @@ def _greedy(
             # what the parts placed since explain: the pixels one of them is drawn in front
             # (every pixel a part was in front of when placed stays one of theirs)
             shape = _bg.render(asm, cam, w, h, line_px=0.0)
-            unexplained &= shape.ids < pending
+            claimed = shape.ids >= pending
+            if CLAIM_OFF < float("inf") and picture is not None:
+                # ... where it draws about the picture's colour: a part in front of it that
+                # the picture shows (drawn there in its own colour) may still explain the rest
+                for k in range(int(pending), len(asm)):
+                    fi, fyaw, ftr = taken[k - n0]
+                    d = drawn.get((fi, fyaw, ftr))
+                    if d is None:
+                        d = drawn[(fi, fyaw, ftr)] = _draw_alone(
+                            types[fi].component, fyaw, ftr, colours[fi], cam, w, h
+                        )
+                    mine = (shape.ids[d.box] == k) & d.own
+                    if mine.any():
+                        off = _colour_off(picture[d.box][mine], d.rgb[mine], tone, rgb_of[fi])
+                        sub = claimed[d.box]
+                        sub[mine] = off <= CLAIM_OFF
+                        claimed[d.box] = sub
+            unexplained &= ~claimed
             shape_depth = shape.depth  # this round's candidates are drawn against it
             pending = None
         for i, t in enumerate(types):
