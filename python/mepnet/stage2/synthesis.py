@@ -438,9 +438,12 @@ def synthesize(
     several instances is solved again
     with each later decision of the greedy taken first (:data:`LATER_FIRST`: a stack's bottom,
     hidden by its top, is no first choice, and its top is not valid before it). A decision
-    forced first keeps its round's choices for the revisits. After the revisits, a step of
-    three or more instances takes each pair of its decisions again last, in the context of
-    all the others (:data:`PAIRS`: two parts each at the other's place).
+    forced first keeps its round's choices for the revisits. After the revisits, the later
+    decisions of the solution they kept are each taken first too (:data:`LATER_FIRST_AGAIN`),
+    and a step of three or more instances takes each pair of its decisions again last, in the
+    context of all the others (:data:`PAIRS`: two parts each at the other's place). A part
+    placed explains, for the rounds after it, the changed pixels it is drawn at in about the
+    picture's colour (:data:`CLAIM_OFF`), not those where a later part shows in front of it.
 
     Parts stand on the ground right beside the base shape (on a build's first step: anywhere
     the picture changed); when the solution explains the picture worse than
