@@ -1386,8 +1386,7 @@ def _explained(
         score -= (EDGE_WEIGHT * undrawn + SHOWN_EDGE_WEIGHT * unseen) / union
     cost = 0.5 * sum(1 for p in preds if not p.placed)
     if HIDDEN_COST:
-        seen = np.unique(r.ids[new]) if new.any() else np.zeros(0, np.int64)
-        cost += HIDDEN_COST * (len(asm) - n0 - len(seen))
+        cost += HIDDEN_COST * (len(asm) - n0 - len(np.unique(r.ids[new])))
     return score - cost / max(len(preds), 1)
 
 
@@ -1474,6 +1473,14 @@ def _greedy(
     unexplained = np.ones((h, w), dtype=bool)
     colours = [ctx.colour(t.entry) for t in types]
     rgb_of = [np.asarray(_bg.colour_rgb(c), np.float64) for c in colours]
+
+    def alone(f: First) -> _Drawn:
+        """The placement ``f`` drawn alone, from ``drawn`` or drawn now and kept there."""
+        if f not in drawn:
+            i, yaw, tr = f
+            drawn[f] = _draw_alone(types[i].component, yaw, tr, colours[i], cam, w, h)
+        return drawn[f]
+
     preds: list[Prediction] = []
     taken: list[First] = []
     options: list[list[First]] = []
@@ -1504,19 +1511,13 @@ def _greedy(
             if CLAIM_OFF < float("inf") and picture is not None:
                 # ... where it draws about the picture's colour: a part in front of it that
                 # the picture shows (drawn there in its own colour) may still explain the rest
-                for k in range(int(pending), len(asm)):
-                    fi, fyaw, ftr = taken[k - n0]
-                    d = drawn.get((fi, fyaw, ftr))
-                    if d is None:
-                        d = drawn[(fi, fyaw, ftr)] = _draw_alone(
-                            types[fi].component, fyaw, ftr, colours[fi], cam, w, h
-                        )
+                for k in range(pending, len(asm)):
+                    f = taken[k - n0]
+                    d = alone(f)
                     mine = (shape.ids[d.box] == k) & d.own
                     if mine.any():
-                        off = _colour_off(picture[d.box][mine], d.rgb[mine], tone, rgb_of[fi])
-                        sub = claimed[d.box]
-                        sub[mine] = off <= CLAIM_OFF
-                        claimed[d.box] = sub
+                        off = _colour_off(picture[d.box][mine], d.rgb[mine], tone, rgb_of[f[0]])
+                        claimed[d.box][mine] = off <= CLAIM_OFF  # a view: written through
             unexplained &= ~claimed
             shape_depth = shape.depth  # this round's candidates are drawn against it
             pending = None
@@ -1542,11 +1543,7 @@ def _greedy(
                 score = iou
                 # the candidate drawn alone, its visible pixels those in front of the shape
                 # (all within the box it is drawn in)
-                d = drawn.get((i, yaw, tr))
-                if d is None:
-                    d = drawn[(i, yaw, tr)] = _draw_alone(
-                        t.component, yaw, tr, colours[i], cam, w, h
-                    )
+                d = alone((i, yaw, tr))
                 box = d.box
                 vis = d.own & (d.depth < shape_depth[box])
                 if vis.any() and TYPE_WEIGHT and t.belief is not None:
