@@ -1182,3 +1182,17 @@ def test_a_part_placed_first_leaves_a_part_in_front_of_it_its_pixels(
     assert hits == n
     monkeypatch.setattr(synthesis, "CLAIM_OFF", float("inf"))
     assert _main_step(folder, step)[0] < n
+
+
+def test_one_of_two_parts_a_cell_off_is_moved_alone(monkeypatch: pytest.MonkeyPatch):
+    """LeoCAD's picture of F20i manual 16 main step 6: two 1x3 bricks side by side. Every
+    round ranks a cell off the true one first for each brick (the detector's mask and keypoint
+    on LeoCAD's drawing favour it), so the revisits end with one brick right and the other a
+    cell off, and a whole-step shift moves both. Each part moved a cell on its own
+    (:data:`PART_SHIFTS`) finds the pair."""
+    import mepnet.stage2.synthesis as synthesis
+
+    folder = Path(__file__).parent / "data" / "leocad_pair"
+    assert _main_step(folder, 6) == (2, 2)
+    monkeypatch.setattr(synthesis, "PART_SHIFTS", False)
+    assert _main_step(folder, 6) == (1, 2)

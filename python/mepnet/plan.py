@@ -299,6 +299,18 @@ def run_build(
                 assert before is not None
                 run.steps[-1].check = judge(run.steps[-1].predictions, before, base)
                 run.steps[-1].check.changed = None
+            if AGAIN_AFTER_REPAIR and any(r.step <= k for r in revisions):
+                # an earlier part this picture moved: the step was predicted on the shape
+                # with it where it was, so it is predicted again on the shape as revised
+                placements, base, again = _again_after_repair(
+                    run.steps[-1],
+                    placements,
+                    lambda b, page=page_seen, predict=predict, finish=finish: finish(
+                        predict(page, base=b, budget_s=TIE_RETRY_BUDGET_S)[0], b
+                    ),
+                    base,
+                )
+                revisions += again
             run.steps[-1].revisions = tie_revisions + revisions
             run.steps[-1].repair_seconds = time.perf_counter() - t0 + tie_seconds
         earlier.append(EarlierStep(page_seen, len(base)))
@@ -490,6 +502,69 @@ def _try_ties(
             del open_ties[n]
             return (*result, trial, revisions)  # type: ignore[return-value]
     return preds, placed, new, built, checked, placements, []
+
+
+#: Whether a step whose picture moved an earlier part (:func:`mepnet.consistency.repair`) and
+#: that it explains worse than :data:`TIE_RETRY_BELOW` is predicted again on the shape as
+#: revised, the new prediction taken when it explains the step better by :data:`TIE_GAIN`
+#: (:func:`_again_after_repair`).
+AGAIN_AFTER_REPAIR = True
+
+
+def _again_after_repair(
+    s: StepRun,
+    placements: list[Placement],
+    again: Callable[[_bg.Assembly], Finished],
+    base: _bg.Assembly,
+) -> tuple[list[Placement], _bg.Assembly, list[Revision]]:
+    """The latest step ``s`` predicted again (``again``, on a shape) on the shape before it as
+    the plan now has it (``placements``: the plan, the step's placements last; ``base``: the
+    shape after it), when it explains its picture worse than :data:`TIE_RETRY_BELOW`; the new
+    prediction replaces the step's when it explains the picture better by :data:`TIE_GAIN`.
+    Returns the plan's placements, the shape after the step and the revisions of the step's
+    own instances (each new placement against the old one of its entry it replaced)."""
+    checked = s.check
+    if checked is None or checked.confidence is None or checked.confidence >= TIE_RETRY_BELOW:
+        return placements, base, []
+    earlier = [p for p in placements if p.step < s.index]
+    before = build_placements(earlier)
+    if before is None:
+        return placements, base, []
+    try:
+        preds, placed, new, built, check = again(before)
+    except (MepnetError, BrickGeomError):
+        return placements, base, []
+    if check.confidence is None or check.confidence < checked.confidence + TIE_GAIN:
+        return placements, base, []
+    check.changed = None
+    # each new placement against an old one of its entry: the same pose first, else the
+    # first left of that entry
+    old = [(j, s.predictions[j].entry, pl) for j, pl in enumerate(s.placed) if pl is not None]
+    free = list(old)
+    revisions = []
+    for j, (p, pl) in enumerate(zip(preds, placed, strict=True)):
+        if pl is None:
+            continue
+        same = next((o for o in free if o[1] == p.entry and o[2][1:3] == pl[1:3]), None)
+        if same is not None:
+            free.remove(same)
+            continue
+        other = next((o for o in free if o[1] == p.entry), None)
+        if other is not None:
+            free.remove(other)
+            revisions.append(
+                Revision(
+                    s.index,
+                    j,
+                    (other[2][1], other[2][2]),
+                    (pl[1], pl[2]),
+                    s.index,
+                    (checked.unexplained, check.unexplained),
+                )
+            )
+        preds[j] = dataclasses.replace(p, extra={**p.extra, "revised_at": s.index})
+    s.predictions, s.placed, s.check = preds, placed, check
+    return earlier + new, built, revisions
 
 
 def _revise(

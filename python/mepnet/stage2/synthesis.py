@@ -904,6 +904,21 @@ def _solve(
         alt_preds, alt_taken, _, alt_score = attempt(moved)
         if alt_score > score + 1e-6:
             preds, score, taken = alt_preds, alt_score, alt_taken
+    # each part moved a cell on its own, the others where they are: of two bricks side by side,
+    # the greedy's rounds rank a cell off the true one first for each (the detector's mask
+    # and keypoint favour it), the second fits what the first left, and a whole-step shift
+    # moves both
+    for level in range(len(taken)) if PART_SHIFTS and len(taken) == total >= 2 else ():
+        if score >= CLOSE or _clock() >= deadline:
+            break
+        i, yaw, tr = taken[level]
+        for dx, dz in SHIFTS[:4]:
+            moved = (i, yaw, (tr[0] + dx, tr[1], tr[2] + dz))
+            alt_preds, alt_taken, _, alt_score = attempt(
+                [*taken[:level], moved, *taken[level + 1 :]]
+            )
+            if alt_score > score + 1e-6:
+                preds, score, taken = alt_preds, alt_score, alt_taken
     # each part turned about itself, filling the same cells (a slope or a panel facing the
     # other way, a corner plate's corner, a side stud): a decision whose next choices all lay
     # elsewhere never tries it
@@ -1125,6 +1140,10 @@ SHIFTS = ((1, 0), (-1, 0), (0, 1), (0, -1), (2, 0), (-2, 0), (0, 2), (0, -2))
 #: fresh set LF20c it moved 2 single parts that were right a cell off, and mended none of
 #: F20c's (stop 45): a lone part's shift wins on noise more often than on evidence.
 SHIFT_MIN_PARTS = 2
+
+#: Whether each part of a step of two or more is also moved a cell (:data:`SHIFTS`' first four)
+#: on its own, the others kept (:func:`_solve`).
+PART_SHIFTS = True
 #: How much better (:func:`_explained`) a step solved with a column must explain its picture
 #: than the step solved without one ...
 COLUMN_MARGIN = 0.03
