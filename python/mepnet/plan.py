@@ -310,6 +310,8 @@ def run_build(
                     ),
                     base,
                 )
+                if again:  # the ties kept were the old prediction's
+                    open_ties[:] = [t for t in open_ties if t[0] != k + 1]
                 revisions += again
             run.steps[-1].revisions = tie_revisions + revisions
             run.steps[-1].repair_seconds = time.perf_counter() - t0 + tie_seconds
