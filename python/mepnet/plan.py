@@ -236,6 +236,16 @@ def run_build(
                 placed.append(pl)
             return preds, placed, new, built, judge(preds, before, built)
 
+        def predict_again(
+            before: _bg.Assembly,
+            page: Step = page_seen,
+            predict: Callable[..., tuple[list[Prediction], float]] = predict,
+            finish: Callable[..., Finished] = finish,
+        ) -> Finished:
+            """The step predicted again on the shape ``before`` (a repair's retries: a tie
+            taken, an earlier part moved), within :data:`TIE_RETRY_BUDGET_S`, and finished."""
+            return finish(predict(page, base=before, budget_s=TIE_RETRY_BUDGET_S)[0], before)
+
         # the predictions join the shape (teacher-forced: a trial copy; the true step joins it)
         preds, placed, new, built, checked = finish(preds, base)
         tie_revisions: list[Revision] = []
@@ -249,9 +259,7 @@ def run_build(
                     placements,
                     (preds, placed, new, built, checked),
                     (camera.camera, w, h),
-                    lambda b, page=page_seen, predict=predict, finish=finish: finish(
-                        predict(page, base=b, budget_s=TIE_RETRY_BUDGET_S)[0], b
-                    ),
+                    predict_again,
                 )
                 tie_seconds = time.perf_counter() - t0
             base = built
@@ -305,9 +313,7 @@ def run_build(
                 placements, base, again = _again_after_repair(
                     run.steps[-1],
                     placements,
-                    lambda b, page=page_seen, predict=predict, finish=finish: finish(
-                        predict(page, base=b, budget_s=TIE_RETRY_BUDGET_S)[0], b
-                    ),
+                    predict_again,
                     base,
                 )
                 if again:  # the ties kept were the old prediction's
@@ -541,8 +547,7 @@ def _again_after_repair(
     check.changed = None
     # each new placement against an old one of its entry: the same pose first, else the
     # first left of that entry
-    old = [(j, s.predictions[j].entry, pl) for j, pl in enumerate(s.placed) if pl is not None]
-    free = list(old)
+    free = [(j, s.predictions[j].entry, pl) for j, pl in enumerate(s.placed) if pl is not None]
     revisions = []
     for j, (p, pl) in enumerate(zip(preds, placed, strict=True)):
         if pl is None:

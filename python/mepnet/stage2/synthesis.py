@@ -805,6 +805,20 @@ def _solve(
         tried.append((score, p))
         return p, t, o, score
 
+    def each_part(moves: Callable[[First], list[First]]) -> None:
+        """Each decision in turn replaced by each of its ``moves`` (the others kept), while the
+        step is explained worse than :data:`CLOSE` and time is left; a better solution is kept."""
+        nonlocal preds, score, taken
+        for level in range(len(taken)):
+            if score >= CLOSE or _clock() >= deadline:
+                break
+            for g in moves(taken[level]):
+                alt_preds, alt_taken, _, alt_score = attempt(
+                    [*taken[:level], g, *taken[level + 1 :]]
+                )
+                if alt_score > score + 1e-6:
+                    preds, score, taken = alt_preds, alt_score, alt_taken
+
     preds, taken, options, score = attempt([])
     # a later decision taken first: a part that shows little until what stands on it is
     # placed (the bottom brick of a stack, hidden by the top one) is never among the first
@@ -908,30 +922,15 @@ def _solve(
     # the greedy's rounds rank a cell off the true one first for each (the detector's mask
     # and keypoint favour it), the second fits what the first left, and a whole-step shift
     # moves both
-    for level in range(len(taken)) if PART_SHIFTS and len(taken) == total >= 2 else ():
-        if score >= CLOSE or _clock() >= deadline:
-            break
-        i, yaw, tr = taken[level]
-        for dx, dz in SHIFTS[:4]:
-            moved = (i, yaw, (tr[0] + dx, tr[1], tr[2] + dz))
-            alt_preds, alt_taken, _, alt_score = attempt(
-                [*taken[:level], moved, *taken[level + 1 :]]
-            )
-            if alt_score > score + 1e-6:
-                preds, score, taken = alt_preds, alt_score, alt_taken
+    if PART_SHIFTS and len(taken) == total >= 2:
+        each_part(
+            lambda f: [(f[0], f[1], (f[2][0] + dx, f[2][1], f[2][2] + dz)) for dx, dz in SHIFTS[:4]]
+        )
     # each part turned about itself, filling the same cells (a slope or a panel facing the
     # other way, a corner plate's corner, a side stud): a decision whose next choices all lay
     # elsewhere never tries it
-    for level in range(len(taken)) if TURNS and len(taken) == total else ():
-        if score >= CLOSE or _clock() >= deadline:
-            break
-        i, yaw, tr = taken[level]
-        for turned in _turns(types[i].component, yaw, tr):
-            alt_preds, alt_taken, _, alt_score = attempt(
-                [*taken[:level], (i, *turned), *taken[level + 1 :]]
-            )
-            if alt_score > score + 1e-6:
-                preds, score, taken = alt_preds, alt_score, alt_taken
+    if TURNS and len(taken) == total:
+        each_part(lambda f: [(f[0], *t) for t in _turns(types[f[0]].component, f[1], f[2])])
     # each part moved along the view ray: drawn at (nearly) the same pixels, mostly hidden, so
     # only what it hides or is hidden by tells; the change map has nothing of the true place,
     # so no round ranks it
