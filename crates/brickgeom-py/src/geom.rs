@@ -499,10 +499,19 @@ impl PyAssembly {
         let g = ground_search(ground)?;
         let yaw = pose(yaw, (0, 0, 0))?.yaw;
         let comp = component.inner.clone();
-        let found = detach_core(py, || self.inner.candidates(&comp, yaw, g))?;
-        let ts: Vec<Lattice> = found.iter().map(|p| p.pose.t).collect();
-        let kinds: Array1<u8> = found.iter().map(|p| p.kind as u8).collect();
-        Ok((points_array(py, &ts), kinds.into_pyarray(py)))
+        // The arrays are built without the GIL too: a huge region gives millions of rows, and
+        // into_pyarray then hands the owned buffers to numpy without copying.
+        let (ts, kinds) = detach_core(py, || {
+            let found = self.inner.candidates(&comp, yaw, g)?;
+            let flat: Vec<i32> = found
+                .iter()
+                .flat_map(|p| p.pose.t.iter().copied())
+                .collect();
+            let ts = Array2::from_shape_vec((found.len(), 3), flat).expect("length is 3 * points");
+            let kinds: Array1<u8> = found.iter().map(|p| p.kind as u8).collect();
+            Ok((ts, kinds))
+        })?;
+        Ok((ts.into_pyarray(py), kinds.into_pyarray(py)))
     }
 
     /// Validity of a step `[(component, yaw, t), ...]`: per component its attach kind, or the
