@@ -222,8 +222,13 @@ def interrupt(
     args: list[str], ready: str, timeout: float = 300
 ) -> subprocess.CompletedProcess[str]:
     """Start a command, wait until its stderr shows ``ready``, press Ctrl-C."""
+    # Ctrl-C as at a terminal: a suite started in the background (``make test &``) runs with
+    # SIGINT ignored, which the command would inherit (and Python then installs no handler)
     p = subprocess.Popen(
-        [sys.executable, "-m", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE
+        [sys.executable, "-m", *args],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
     )
     assert p.stderr is not None
     fd = p.stderr.fileno()
