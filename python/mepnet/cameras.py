@@ -40,7 +40,6 @@ import dataclasses
 import math
 import time
 from collections.abc import Iterator
-from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any
 
@@ -50,6 +49,7 @@ from mepnet import _brickgeom as _bg
 from mepnet.frames import IDENTITY, Motion, candidate_motions, matches, placement_key, symmetries
 from mepnet.geom import LDU_PER_CELL, bounds_corners
 from mepnet.manual import ComponentRef, Step
+from mepnet.threads import one_thread
 
 __all__ = [
     "CameraEstimate",
@@ -304,29 +304,12 @@ class _Picture:
         return self._edges
 
 
-@contextmanager
-def _one_thread() -> Iterator[None]:
-    """torch on one thread for the sweep's small FFTs and products (a few ms of work). On an
-    idle 2-core machine torch's pool does a scale sweep's correlation in 3.3 ms against 5.2 on
-    one thread; but when another process holds a core, the pool's threads wait on each other
-    and the same correlation took 120 ms (7 ms on one thread). The caller's setting is
-    restored."""
-    import torch
-
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(n)
-
-
 def _rfft2(planes: np.ndarray) -> np.ndarray:
     """The 2D real FFTs of ``planes`` (..., H, W) float32, batched (torch's: several times
     numpy's speed on the sweep's many small planes), complex64."""
     import torch
 
-    with _one_thread():
+    with one_thread():
         x = torch.from_numpy(np.ascontiguousarray(planes, np.float32))
         return torch.fft.rfft2(x).numpy()
 
@@ -343,7 +326,7 @@ def _correlations(
 
     two_h = f_weight.shape[0]
     size = (two_h, 2 * (f_weight.shape[1] - 1))
-    with _one_thread():
+    with one_thread():
         ref = torch.fft.rfft2(torch.from_numpy(np.ascontiguousarray(planes, np.float32)), s=size)
         spec = torch.from_numpy(f_weight) * ref[:, 0].conj()
         f_c = torch.from_numpy(np.ascontiguousarray(f_colour))

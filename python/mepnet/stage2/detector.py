@@ -22,6 +22,7 @@ from mepnet.errors import ConfigError
 from mepnet.stage2.base import LIFTS, Prediction, Predictor, StepContext
 from mepnet.stage2.keypoint import DetectedType, lift_keypoints
 from mepnet.stage2.synthesis import SynthesisType, Tone, step_change, step_picture, synthesize
+from mepnet.threads import one_thread
 
 #: How the detector's detections are lifted to 3D.
 
@@ -108,7 +109,8 @@ class MEPNetPredictor(Predictor):
             # where the picture differs from the base shape (lines tolerated), at the image's
             # size; a non-square image: the change map of the network's (resized) input
             change, tone = step_change(ctx, picture) if self.use_change and w == h else (None, None)
-            types, _ = self.detect(ctx, change)
+            with one_thread():
+                types, _ = self.detect(ctx, change)
             return types, picture, tone
         finally:
             self.model.train(was_training)

@@ -21,6 +21,7 @@ from mepnet.detector.targets import collate, component_slots, make_sample, world
 from mepnet.geom import ATTACH_KINDS, LDU_PER_CELL
 from mepnet.stage2.base import Prediction, Predictor, StepContext
 from mepnet.stage2.synthesis import step_change, step_picture
+from mepnet.threads import one_thread
 
 #: The neighbourhood searched around the rounded translation, in lattice cells (x, y, z): the
 #: paper's offsets {0, +-0.5, +-1} in units of a 1x1x1 brick are +-2 half-studs across and +-3
@@ -97,7 +98,8 @@ class Direct3DPredictor(Predictor):
         was_training = self.model.training
         self.model.eval()
         try:
-            return self._predict(ctx)
+            with one_thread():
+                return self._predict(ctx)
         finally:
             self.model.train(was_training)
 
