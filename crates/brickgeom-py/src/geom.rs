@@ -32,11 +32,15 @@ fn pose(yaw: i64, t: Int3) -> PyResult<Pose> {
 }
 
 /// (N, 3) int32 array from lattice points.
-fn points_array<'py>(py: Python<'py>, points: &[Lattice]) -> Bound<'py, PyArray2<i32>> {
+/// Lattice points as an (N, 3) array: built without the GIL where the list is long
+/// ([`points_array`] hands it to numpy without a copy).
+fn points_rows(points: &[Lattice]) -> Array2<i32> {
     let flat: Vec<i32> = points.iter().flat_map(|p| p.iter().copied()).collect();
-    Array2::from_shape_vec((points.len(), 3), flat)
-        .expect("length is 3 * points")
-        .into_pyarray(py)
+    Array2::from_shape_vec((points.len(), 3), flat).expect("length is 3 * points")
+}
+
+fn points_array<'py>(py: Python<'py>, points: &[Lattice]) -> Bound<'py, PyArray2<i32>> {
+    points_rows(points).into_pyarray(py)
 }
 
 fn mesh_arrays<'py>(
@@ -503,13 +507,9 @@ impl PyAssembly {
         // into_pyarray then hands the owned buffers to numpy without copying.
         let (ts, kinds) = detach_core(py, || {
             let found = self.inner.candidates(&comp, yaw, g)?;
-            let flat: Vec<i32> = found
-                .iter()
-                .flat_map(|p| p.pose.t.iter().copied())
-                .collect();
-            let ts = Array2::from_shape_vec((found.len(), 3), flat).expect("length is 3 * points");
+            let ts: Vec<Lattice> = found.iter().map(|p| p.pose.t).collect();
             let kinds: Array1<u8> = found.iter().map(|p| p.kind as u8).collect();
-            Ok((ts, kinds))
+            Ok((points_rows(&ts), kinds))
         })?;
         Ok((ts.into_pyarray(py), kinds.into_pyarray(py)))
     }
