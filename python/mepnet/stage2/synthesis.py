@@ -887,10 +887,15 @@ def _solve(
     # (the margin at most a share of what the step leaves unexplained: a column that explains
     # a step exactly wins over a greedy a few hundredths short)
     columns = _columns(ctx, types, taken, time_limit_s, wide, deadline) if score < CLOSE else []
-    for prefix in columns if COLUMNS else []:
+    for column in columns if COLUMNS else []:
         if score >= CLOSE or _clock() >= deadline:
             break
-        alt_preds, alt_taken, _, alt_score = attempt(prefix)
+        # the step's other parts kept where they are (the greedy after a column may place
+        # them worse than it did before), else placed again around it
+        kept = [f for f in taken if f[0] != column[0][0]]
+        alt_preds, alt_taken, _, alt_score = attempt([*column, *kept])
+        if alt_score == float("-inf") and kept and _clock() < deadline:
+            alt_preds, alt_taken, _, alt_score = attempt(column)
         if alt_score > score + min(COLUMN_MARGIN, COLUMN_SHARE * (1.0 - score)):
             preds, score, taken = alt_preds, alt_score, alt_taken
     # a part the picture shows little or nothing of, while changed pixels stay unexplained:
@@ -956,6 +961,19 @@ def _solve(
         alt_preds, alt_taken, _, alt_score = attempt(turned)
         if alt_score > score + 1e-6:
             preds, score, taken = alt_preds, alt_score, alt_taken
+    # ... and each group of them that touch (:func:`_groups`) turned the same way, the others
+    # kept: two jumper plates side by side turned across, beside parts placed elsewhere
+    groups = _groups(types, taken) if GROUP_TURNS and len(taken) == total > 2 else []
+    for group in groups:
+        for turned in _step_turns(types, [taken[k] for k in group]):
+            if score >= CLOSE or _clock() >= deadline:
+                break
+            prefix = list(taken)
+            for k, f in zip(group, turned, strict=True):
+                prefix[k] = f
+            alt_preds, alt_taken, _, alt_score = attempt(prefix)
+            if alt_score > score + 1e-6:
+                preds, score, taken = alt_preds, alt_score, alt_taken
     # a round's next choices drawn exactly like its decision on the shape it was taken on (a
     # side stud facing away, a part under others): a well explained step revisits nothing, so
     # these solutions are tried here, for the step's ties (:func:`_ties`) that a later picture
@@ -1035,6 +1053,28 @@ def _step_turns(types: list[SynthesisType], taken: list[First]) -> list[list[Fir
     return out
 
 
+def _groups(types: list[SynthesisType], taken: list[First]) -> list[list[int]]:
+    """The step's decisions in groups that touch (their boxes overlap or meet, corners
+    included), as indices into ``taken``, those of two or more parts and not the whole step."""
+    boxes = [placement_box(types[i].component, yaw, t) for i, yaw, t in taken]
+    group = list(range(len(taken)))
+
+    def root(a: int) -> int:
+        while group[a] != a:
+            a = group[a]
+        return a
+
+    for a in range(len(taken)):
+        for b in range(a + 1, len(taken)):
+            (la, ha), (lb, hb) = boxes[a], boxes[b]
+            if all(la[x] <= hb[x] + 1 and lb[x] <= ha[x] + 1 for x in range(3)):
+                group[root(b)] = root(a)
+    out: dict[int, list[int]] = {}
+    for a in range(len(taken)):
+        out.setdefault(root(a), []).append(a)
+    return [g for g in out.values() if 1 < len(g) < len(taken)]
+
+
 def _seen_alike(a: _Drawn, b: _Drawn, depth: np.ndarray) -> bool:
     """Whether two candidates drawn alone (:func:`_draw_alone`) show alike (:func:`_alike`) in
     front of a shape drawn at ``depth`` (the whole image's)."""
@@ -1072,6 +1112,12 @@ STEP_TURNS = True
 #: Choices of each of a step's rounds (its decision included) looked at for placements drawn
 #: like the decision (:func:`_solve`'s last pass; 1: none).
 TIE_CHOICES = 3
+#: Whether a step explained worse than :data:`CLOSE` has each group of its parts that touch
+#: (:func:`_groups`) turned together (:func:`_step_turns`), the others kept (:func:`_solve`).
+GROUP_TURNS = True
+#: Whether a forced decision of :func:`_greedy`'s ``prefix`` that does not fit yet waits for
+#: the others (a column hung under a plate, given bottom first); else the greedy stops there.
+DEFER_FORCED = True
 #: A multi-instance step whose parts explain the changed pixels at least this well
 #: (:func:`_explained`) is kept as the greedy solved it. (0.95 until stop 43: scoring the
 #: pixels a part draws in the picture's own colour as no evidence, :data:`QUIET_LEVEL`, lifts
@@ -1502,6 +1548,7 @@ def _greedy(
     preds: list[Prediction] = []
     taken: list[First] = []
     options: list[list[First]] = []
+    waiting = list(prefix)  # the forced decisions not yet placed
     shape_depth: np.ndarray | None = None  # of asm, rendered when first needed
     # the first instance id placed since the shape was last drawn: drawn again only when a
     # round searches (forced and remembered rounds, and the last, need no drawing)
@@ -1509,11 +1556,21 @@ def _greedy(
     while any(left):
         best: tuple[float, int, tuple[int, tuple[int, int, int]], dict[str, Any]] | None = None
         ranked_here: list[tuple[float, First]] = []
-        forced = len(preds) < len(prefix)
+        forced = bool(waiting)
         key = frozenset(taken)
         cached = not forced and memo is not None and key in memo
         if forced:
-            i, yaw, tr = prefix[len(preds)]
+            # the first forced decision that fits now (:data:`DEFER_FORCED`: one that does not
+            # waits for the others, a part hung under one placed after it in ``prefix``)
+            for k, (i, yaw, tr) in enumerate(waiting if DEFER_FORCED else waiting[:1]):
+                try:
+                    new_id, attach = asm.add_checked(types[i].component, yaw, tr)
+                except BrickGeomError:
+                    continue
+                del waiting[k]
+                break
+            else:
+                return preds, taken, options  # no forced decision fits
             best = (0.0, i, (yaw, tr), {"forced": True})
             if REVISIT_FORCED and memo is not None and key in memo:
                 # the round's own ranking, as an unforced greedy found it: the choices a
@@ -1588,10 +1645,11 @@ def _greedy(
                 left[i] = 0
             break
         _, i, (yaw, tr), extra = best
-        try:
-            new_id, attach = asm.add_checked(types[i].component, yaw, tr)
-        except BrickGeomError:  # a forced choice that does not fit
-            return preds, taken, options
+        if not forced:
+            try:
+                new_id, attach = asm.add_checked(types[i].component, yaw, tr)
+            except BrickGeomError:  # a ranked placement is valid: kept as a guard
+                return preds, taken, options
         taken.append((i, yaw, tr))
         options.append([f for _, f in sorted(ranked_here, key=lambda x: -x[0])])
         if pending is None:
