@@ -816,6 +816,8 @@ def _solve(
                 alt_preds, alt_taken, _, alt_score = attempt(
                     [*taken[:level], g, *taken[level + 1 :]]
                 )
+                if alt_score == float("-inf") and MOVES_REPLACE and _clock() < deadline:
+                    alt_preds, alt_taken, _, alt_score = attempt([*taken[:level], g])
                 if alt_score > score + 1e-6:
                     preds, score, taken = alt_preds, alt_score, alt_taken
 
@@ -833,7 +835,9 @@ def _solve(
             preds, score, taken, options = alt_preds, alt_score, alt_taken, alt_options
     # each decision in turn: the next best choices there, the rest greedy again
     level = 0
-    while score < WELL_EXPLAINED and level < len(taken) and _clock() < deadline:
+    # (a step of one part up to :data:`CLOSE`: its choices are placements scored, no greedy)
+    revisit_below = CLOSE if LONE_CHOICES and total == 1 else WELL_EXPLAINED
+    while score < revisit_below and level < len(taken) and _clock() < deadline:
         choices = _choices(options[level], LEAD_CHOICES if level == 0 else FIRST_CHOICES, level)
         for alt in choices[1:]:
             if _clock() >= deadline:
@@ -935,7 +939,15 @@ def _solve(
     # other way, a corner plate's corner, a side stud): a decision whose next choices all lay
     # elsewhere never tries it
     if TURNS and len(taken) == total:
-        each_part(lambda f: [(f[0], *t) for t in _turns(types[f[0]].component, f[1], f[2])])
+        before = score
+        each_part(lambda f: [(f[0], *t) for t in _turns(types[f[0]].component, f[1], f[2], True)])
+        # ... and after a turn, each part a cell off again (a turned slope's row shifted)
+        if PART_SHIFTS and score > before and len(taken) == total >= 2:
+            each_part(
+                lambda f: [
+                    (f[0], f[1], (f[2][0] + dx, f[2][1], f[2][2] + dz)) for dx, dz in SHIFTS[:4]
+                ]
+            )
     # each part moved along the view ray: drawn at (nearly) the same pixels, mostly hidden, so
     # only what it hides or is hidden by tells; the change map has nothing of the true place,
     # so no round ranks it
@@ -995,13 +1007,22 @@ def _solve(
 
 
 def _turns(
-    comp: _bg.Component, yaw: int, t: tuple[int, int, int]
+    comp: _bg.Component, yaw: int, t: tuple[int, int, int], in_place: bool = False
 ) -> list[tuple[int, tuple[int, int, int]]]:
     """The other placements of ``comp`` filling the same box as at ``(yaw, t)``: each other
-    yaw, moved so that its box is the same, unless it is the same placement (symmetry)."""
+    yaw, moved so that its box is the same, unless it is the same placement (symmetry);
+    ``in_place`` (:data:`TURNS_IN_PLACE`): then each other yaw about ``t`` itself too (a slope
+    in a row turned to face the way of its neighbours, its box moved)."""
 
     lo, hi = placement_box(comp, yaw, t)
     out: list[tuple[int, tuple[int, int, int]]] = []
+
+    def add(y: int, t2: tuple[int, int, int]) -> None:
+        if not comp.same_placement(yaw, t, y, t2) and not any(
+            comp.same_placement(y, t2, *o) for o in out
+        ):
+            out.append((y, t2))
+
     for y in range(4):
         if y == yaw:
             continue
@@ -1009,11 +1030,10 @@ def _turns(
         d = tuple(a - b for a, b in zip(lo, lo2, strict=True))
         if tuple(a - b for a, b in zip(hi, hi2, strict=True)) != d:
             continue  # turned, it fills other cells
-        t2 = (t[0] + d[0], t[1] + d[1], t[2] + d[2])
-        if not comp.same_placement(yaw, t, y, t2) and not any(
-            comp.same_placement(y, t2, *o) for o in out
-        ):
-            out.append((y, t2))
+        add(y, (t[0] + d[0], t[1] + d[1], t[2] + d[2]))
+    for y in range(4) if in_place and TURNS_IN_PLACE else ():
+        if y != yaw:
+            add(y, t)
     return out
 
 
@@ -1115,6 +1135,17 @@ TIE_CHOICES = 3
 #: Whether a step explained worse than :data:`CLOSE` has each group of its parts that touch
 #: (:func:`_groups`) turned together (:func:`_step_turns`), the others kept (:func:`_solve`).
 GROUP_TURNS = True
+#: Whether a step of a single part explained worse than :data:`CLOSE` (not only than
+#: :data:`WELL_EXPLAINED`) has its round's next choices tried (:func:`_solve`): each is one
+#: placement scored, no greedy run after it.
+LONE_CHOICES = True
+#: Whether a part's move that does not fit with the step's later decisions kept (a turned
+#: part in a neighbour's cells) is tried again with those placed anew by the greedy
+#: (:func:`_solve`'s ``each_part``).
+MOVES_REPLACE = True
+#: Whether :data:`TURNS` also turns each part about its own position (other cells), not only
+#: within the box it fills (:func:`_turns`).
+TURNS_IN_PLACE = True
 #: Whether a forced decision of :func:`_greedy`'s ``prefix`` that does not fit yet waits for
 #: the others (a column hung under a plate, given bottom first); else the greedy stops there.
 DEFER_FORCED = True
@@ -1208,6 +1239,8 @@ RELOCATE_SEEN = 0.5
 #: with those pixels, and as many showing most of them (of :data:`RELOCATE_RANKED` by IoU).
 RELOCATE_PARTS = 2
 RELOCATE_CHOICES = 3
+#: Whether each placement a part is relocated to is also tried turned (:func:`_turns`).
+RELOCATE_TURNS = True
 RELOCATE_RANKED = 16
 
 
@@ -1273,7 +1306,19 @@ def _relocations(
         by_iou = [f for _, _, f in shown[:RELOCATE_CHOICES]]
         shown.sort(key=lambda x: (-x[0], -x[1]))
         by_shown = [f for _, _, f in shown[:RELOCATE_CHOICES] if f not in by_iou]
-        out.extend([*rest, f] for f in by_iou + by_shown)
+        # each also turned (:func:`_turns`, about itself too): a part shown by a sliver ranks
+        # its yaws there alike, and the true one may not be among the first
+        tried: list[First] = []
+        for f in by_iou + by_shown:
+            turned = (
+                [(i, y, t) for y, t in _turns(comp, f[1], f[2], True)] if RELOCATE_TURNS else []
+            )
+            for g in [f, *turned]:
+                if g != taken[k] and not any(
+                    comp.same_placement(g[1], g[2], e[1], e[2]) for e in tried
+                ):
+                    tried.append(g)
+        out.extend([*rest, f] for f in tried)
     return out
 
 
