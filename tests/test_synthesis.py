@@ -973,6 +973,52 @@ def test_a_part_relocated_where_a_sliver_of_it_shows_is_turned_there(
     assert hits == n - 1
 
 
+def test_parts_drawn_alone_compare_over_both_their_boxes():
+    """``_seen_alike``: two candidates drawn alone whose boxes differ (a side stud sticks out
+    of one) show alike where the shape in front hides what differs, and not where it shows."""
+    from mepnet.stage2.synthesis import _Drawn, _seen_alike
+
+    rgb = np.full((4, 6, 3), 200, np.uint8)
+    a = _Drawn((slice(10, 14), slice(20, 26)), np.ones((4, 6), bool), np.full((4, 6), 5.0), rgb)
+    rgb_b = np.full((4, 8, 3), 200, np.uint8)
+    b = _Drawn((slice(10, 14), slice(20, 28)), np.ones((4, 8), bool), np.full((4, 8), 5.0), rgb_b)
+    hidden = np.full((64, 64), 100.0)
+    hidden[10:14, 26:28] = 1.0  # the shape in front of what sticks out of ``b``
+    assert _seen_alike(a, b, hidden)
+    shown = np.full((64, 64), 100.0)
+    assert not _seen_alike(a, b, shown)
+
+
+def test_a_side_stud_turned_away_is_kept_as_a_tie(tmp_path_factory: pytest.TempPathFactory):
+    """F20n manual 17 step 6 (seed 1130017): a 1x1 brick with a side stud, which the picture
+    shows only from the front: the side stud facing right or away draws the same. Drawn alone,
+    the stud of one sticks out of the box the other is drawn in, so the two never compared
+    alike and the tie (kept for later pictures to judge: the next one, turned a quarter, shows
+    the stud) was not kept. Compared over both boxes (``_seen_alike``), the true yaw is kept as
+    a tie of the step (the plan on its own predictions then revises it at step 7)."""
+    from mepnet.manual import answers_of
+    from mepnet.stage2 import StepContext
+    from mepnet.stage2.base import EarlierStep
+
+    folder = _drawn_again(tmp_path_factory, "unseen_n", (1130017,)) / "manual_01130017"
+    m = load_manual(folder)
+    ans = answers_of(m)
+    comps = ans.components(m)
+    truth = ans.build(None)
+    earlier = tuple(
+        EarlierStep(m.main.steps[j], len(truth.assembly_before(j + 1, comps))) for j in range(5)
+    )
+    ctx = StepContext(
+        m.main.steps[5], truth.assembly_before(5, comps), comps, m.image_size, earlier
+    )
+    preds = make_predictor("mepnet").predict(ctx)
+    (true,) = truth.truth(5).placed()
+    assert str(true.component) == "87087"
+    kept = [(p.yaw, tuple(p.t)) for p in preds]
+    ties = [(y, tuple(t)) for p in preds for alt in p.extra.get("ties") or [] for _, y, t in alt]
+    assert any(comps[true.component].same_placement(true.yaw, true.t, y, t) for y, t in kept + ties)
+
+
 def test_a_part_apart_that_took_another_parts_place_is_moved_with_it(
     study: Path, monkeypatch: pytest.MonkeyPatch
 ):

@@ -1097,14 +1097,25 @@ def _groups(types: list[SynthesisType], taken: list[First]) -> list[list[int]]:
 
 def _seen_alike(a: _Drawn, b: _Drawn, depth: np.ndarray) -> bool:
     """Whether two candidates drawn alone (:func:`_draw_alone`) show alike (:func:`_alike`) in
-    front of a shape drawn at ``depth`` (the whole image's)."""
-    if a.box != b.box:
-        return False
-    seen_a = a.own & (a.depth < depth[a.box])
-    seen_b = b.own & (b.depth < depth[b.box])
-    return _alike(
-        np.where(seen_a[..., None], a.rgb, 0), np.where(seen_b[..., None], b.rgb, 0), depth.size
-    )
+    front of a shape drawn at ``depth`` (the whole image's), compared over both their boxes (a
+    side stud turned away sticks out of the box drawn alone, hidden behind the shape)."""
+    drawn = [d for d in (a, b) if d.own.size]
+    if not drawn:
+        return True
+    r0, r1 = min(d.box[0].start for d in drawn), max(d.box[0].stop for d in drawn)
+    c0, c1 = min(d.box[1].start for d in drawn), max(d.box[1].stop for d in drawn)
+
+    def seen(d: _Drawn) -> np.ndarray:
+        out = np.zeros((r1 - r0, c1 - c0, 3), d.rgb.dtype)
+        if d.own.size:
+            mine = d.own & (d.depth < depth[d.box])
+            rows, cols = d.box
+            out[rows.start - r0 : rows.stop - r0, cols.start - c0 : cols.stop - c0][mine] = d.rgb[
+                mine
+            ]
+        return out
+
+    return _alike(seen(a), seen(b), depth.size)
 
 
 #: A step explained worse than this (:func:`_explained`; 1: exactly) is tried again with its
