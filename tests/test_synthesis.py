@@ -1237,12 +1237,15 @@ def test_a_single_part_a_cell_off_is_moved_only_when_asked(
     a cell off the drawn one. Shifting a step of a single part (:data:`SHIFT_MIN_PARTS` 1)
     mends it; it is off by default (it lost more steps than it mended on a fresh set). Since
     stop 53 the next choices of a lone part explained below ``CLOSE`` (``LONE_CHOICES``) reach
-    it too: off here, to show the shift."""
+    it, and so does the last pass over choices drawn alike (``TIE_CHOICES``; ``_seen_alike``
+    compares over both boxes): each on its own; both off here, to show the shift."""
     import mepnet.stage2.synthesis as synthesis
 
     folder = _drawn_again(tmp_path_factory, "study22", (1020006,)) / "manual_01020006"
     assert _main_step(folder, 13) == (1, 1)
     monkeypatch.setattr(synthesis, "LONE_CHOICES", False)
+    assert _main_step(folder, 13) == (1, 1)
+    monkeypatch.setattr(synthesis, "TIE_CHOICES", 1)
     assert _main_step(folder, 13) == (0, 1)
     monkeypatch.setattr(synthesis, "SHIFT_MIN_PARTS", 1)
     assert _main_step(folder, 13) == (1, 1)
