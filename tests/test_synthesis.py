@@ -5,6 +5,7 @@ from __future__ import annotations
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -524,11 +525,10 @@ def test_a_row_of_parts_a_cell_off_is_moved_as_a_whole(monkeypatch: pytest.Monke
     assert step_matches(stuck, stuck.main.steps[0]) == 0
 
 
-def _main_step(manual_dir: Path, k: int, submodule: int | None = None) -> tuple[int, int]:
-    """Predict main step ``k`` (1-based; of submodule ``submodule`` when given) teacher-forced,
-    on the true shape before it (the earlier pictures as the plan loop hands them); returns how
-    many of its true instances were placed exactly (rotation modulo symmetry), and how many
-    there are."""
+def _teacher_forced(manual_dir: Path, k: int, submodule: int | None = None) -> tuple[Any, ...]:
+    """Main step ``k`` (1-based; of submodule ``submodule`` when given) predicted by ``mepnet``
+    teacher-forced, on the true shape before it (the earlier pictures as the plan loop hands
+    them): the predictions, the step's true instances and the manual's components."""
     from mepnet.manual import answers_of
     from mepnet.stage2 import StepContext
     from mepnet.stage2.base import EarlierStep
@@ -543,8 +543,13 @@ def _main_step(manual_dir: Path, k: int, submodule: int | None = None) -> tuple[
     )
     base = truth.assembly_before(k - 1, comps)
     ctx = StepContext(build.steps[k - 1], base, comps, m.image_size, earlier)
-    preds = make_predictor("mepnet").predict(ctx)
-    true = truth.truth(k - 1).placed()
+    return make_predictor("mepnet").predict(ctx), truth.truth(k - 1).placed(), comps
+
+
+def _main_step(manual_dir: Path, k: int, submodule: int | None = None) -> tuple[int, int]:
+    """:func:`_teacher_forced`: how many of the step's true instances were placed exactly
+    (rotation modulo symmetry), and how many there are."""
+    preds, true, comps = _teacher_forced(manual_dir, k, submodule)
     left, hits = list(preds), 0
     for i in true:
         hit = next(
@@ -996,23 +1001,8 @@ def test_a_side_stud_turned_away_is_kept_as_a_tie(tmp_path_factory: pytest.TempP
     alike and the tie (kept for later pictures to judge: the next one, turned a quarter, shows
     the stud) was not kept. Compared over both boxes (``_seen_alike``), the true yaw is kept as
     a tie of the step (the plan on its own predictions then revises it at step 7)."""
-    from mepnet.manual import answers_of
-    from mepnet.stage2 import StepContext
-    from mepnet.stage2.base import EarlierStep
-
     folder = _drawn_again(tmp_path_factory, "unseen_n", (1130017,)) / "manual_01130017"
-    m = load_manual(folder)
-    ans = answers_of(m)
-    comps = ans.components(m)
-    truth = ans.build(None)
-    earlier = tuple(
-        EarlierStep(m.main.steps[j], len(truth.assembly_before(j + 1, comps))) for j in range(5)
-    )
-    ctx = StepContext(
-        m.main.steps[5], truth.assembly_before(5, comps), comps, m.image_size, earlier
-    )
-    preds = make_predictor("mepnet").predict(ctx)
-    (true,) = truth.truth(5).placed()
+    preds, (true,), comps = _teacher_forced(folder, 6)
     assert str(true.component) == "87087"
     kept = [(p.yaw, tuple(p.t)) for p in preds]
     ties = [(y, tuple(t)) for p in preds for alt in p.extra.get("ties") or [] for _, y, t in alt]

@@ -34,13 +34,14 @@ fn pose(yaw: i64, t: Int3) -> PyResult<Pose> {
 /// (N, 3) int32 array from lattice points.
 /// Lattice points as an (N, 3) array: built without the GIL where the list is long
 /// ([`points_array`] hands it to numpy without a copy).
-fn points_rows(points: &[Lattice]) -> Array2<i32> {
-    let flat: Vec<i32> = points.iter().flat_map(|p| p.iter().copied()).collect();
-    Array2::from_shape_vec((points.len(), 3), flat).expect("length is 3 * points")
+fn points_rows(points: impl ExactSizeIterator<Item = Lattice>) -> Array2<i32> {
+    let n = points.len();
+    let flat: Vec<i32> = points.flat_map(|p| p.into_iter()).collect();
+    Array2::from_shape_vec((n, 3), flat).expect("length is 3 * points")
 }
 
 fn points_array<'py>(py: Python<'py>, points: &[Lattice]) -> Bound<'py, PyArray2<i32>> {
-    points_rows(points).into_pyarray(py)
+    points_rows(points.iter().copied()).into_pyarray(py)
 }
 
 fn mesh_arrays<'py>(
@@ -507,9 +508,9 @@ impl PyAssembly {
         // into_pyarray then hands the owned buffers to numpy without copying.
         let (ts, kinds) = detach_core(py, || {
             let found = self.inner.candidates(&comp, yaw, g)?;
-            let ts: Vec<Lattice> = found.iter().map(|p| p.pose.t).collect();
+            let ts = points_rows(found.iter().map(|p| p.pose.t));
             let kinds: Array1<u8> = found.iter().map(|p| p.kind as u8).collect();
-            Ok((points_rows(&ts), kinds))
+            Ok((ts, kinds))
         })?;
         Ok((ts.into_pyarray(py), kinds.into_pyarray(py)))
     }

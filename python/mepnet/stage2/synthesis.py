@@ -805,19 +805,28 @@ def _solve(
         tried.append((score, p))
         return p, t, o, score
 
+    def attempt_kept(
+        head: list[First], kept: list[First], replace: bool = True
+    ) -> tuple[list[Prediction], list[First], Any, float]:
+        """:func:`attempt` with ``head`` then ``kept`` forced; where ``kept`` does not fit
+        beside ``head`` (``replace``), with ``head`` alone, the rest placed again."""
+        out = attempt([*head, *kept])
+        if out[3] == float("-inf") and replace and kept and _clock() < deadline:
+            out = attempt(head)
+        return out
+
     def each_part(moves: Callable[[First], list[First]]) -> None:
-        """Each decision in turn replaced by each of its ``moves`` (the others kept), while the
-        step is explained worse than :data:`CLOSE` and time is left; a better solution is kept."""
+        """Each decision in turn replaced by each of its ``moves`` (the others kept, or placed
+        again after it: :data:`MOVES_REPLACE`), while the step is explained worse than
+        :data:`CLOSE` and time is left; a better solution is kept."""
         nonlocal preds, score, taken
         for level in range(len(taken)):
             if score >= CLOSE or _clock() >= deadline:
                 break
             for g in moves(taken[level]):
-                alt_preds, alt_taken, _, alt_score = attempt(
-                    [*taken[:level], g, *taken[level + 1 :]]
+                alt_preds, alt_taken, _, alt_score = attempt_kept(
+                    [*taken[:level], g], taken[level + 1 :], MOVES_REPLACE
                 )
-                if alt_score == float("-inf") and MOVES_REPLACE and _clock() < deadline:
-                    alt_preds, alt_taken, _, alt_score = attempt([*taken[:level], g])
                 if alt_score > score + 1e-6:
                     preds, score, taken = alt_preds, alt_score, alt_taken
 
@@ -897,9 +906,7 @@ def _solve(
         # the step's other parts kept where they are (the greedy after a column may place
         # them worse than it did before), else placed again around it
         kept = [f for f in taken if f[0] != column[0][0]]
-        alt_preds, alt_taken, _, alt_score = attempt([*column, *kept])
-        if alt_score == float("-inf") and kept and _clock() < deadline:
-            alt_preds, alt_taken, _, alt_score = attempt(column)
+        alt_preds, alt_taken, _, alt_score = attempt_kept(column, kept)
         if alt_score > score + min(COLUMN_MARGIN, COLUMN_SHARE * (1.0 - score)):
             preds, score, taken = alt_preds, alt_score, alt_taken
     # a part the picture shows little or nothing of, while changed pixels stay unexplained:
@@ -927,14 +934,16 @@ def _solve(
         alt_preds, alt_taken, _, alt_score = attempt(moved)
         if alt_score > score + 1e-6:
             preds, score, taken = alt_preds, alt_score, alt_taken
+
     # each part moved a cell on its own, the others where they are: of two bricks side by side,
     # the greedy's rounds rank a cell off the true one first for each (the detector's mask
     # and keypoint favour it), the second fits what the first left, and a whole-step shift
     # moves both
+    def cell_moves(f: First) -> list[First]:
+        return [(f[0], f[1], (f[2][0] + dx, f[2][1], f[2][2] + dz)) for dx, dz in SHIFTS[:4]]
+
     if PART_SHIFTS and len(taken) == total >= 2:
-        each_part(
-            lambda f: [(f[0], f[1], (f[2][0] + dx, f[2][1], f[2][2] + dz)) for dx, dz in SHIFTS[:4]]
-        )
+        each_part(cell_moves)
     # each part turned about itself, filling the same cells (a slope or a panel facing the
     # other way, a corner plate's corner, a side stud): a decision whose next choices all lay
     # elsewhere never tries it
@@ -943,11 +952,7 @@ def _solve(
         each_part(lambda f: [(f[0], *t) for t in _turns(types[f[0]].component, f[1], f[2], True)])
         # ... and after a turn, each part a cell off again (a turned slope's row shifted)
         if PART_SHIFTS and score > before and len(taken) == total >= 2:
-            each_part(
-                lambda f: [
-                    (f[0], f[1], (f[2][0] + dx, f[2][1], f[2][2] + dz)) for dx, dz in SHIFTS[:4]
-                ]
-            )
+            each_part(cell_moves)
     # each part moved along the view ray: drawn at (nearly) the same pixels, mostly hidden, so
     # only what it hides or is hidden by tells; the change map has nothing of the true place,
     # so no round ranks it
