@@ -616,6 +616,7 @@ def test_two_parts_each_at_the_others_place_are_swapped_back(
     monkeypatch.setattr(synthesis, "PAIRS", False)
     monkeypatch.setattr(synthesis, "DEEP_BELOW", float("-inf"))  # which also mends it
     monkeypatch.setattr(synthesis, "CLAIM_OFF", float("inf"))  # and so does this
+    monkeypatch.setattr(synthesis, "SWAPS", False)  # and each part put at the other's place
     hits, n = _main_step(fresh / "manual_00930011", 5)
     assert hits <= 3
 
@@ -1217,6 +1218,7 @@ def test_a_first_step_tries_each_part_first(tmp_path_factory: pytest.TempPathFac
     folder = _drawn_again(tmp_path_factory, "typeleads", (1010000,)) / "manual_01010000"
     assert _main_step(folder, 1, submodule=0) == (3, 3)
     monkeypatch.setattr(synthesis, "TYPE_LEADS", False)
+    monkeypatch.setattr(synthesis, "SWAPS", False)  # (a part put at the slope's place mends it too)
     assert _main_step(folder, 1, submodule=0)[0] < 3
 
 
@@ -1350,3 +1352,45 @@ def test_one_of_two_parts_a_cell_off_is_moved_alone(monkeypatch: pytest.MonkeyPa
     assert _main_step(folder, 6) == (2, 2)
     monkeypatch.setattr(synthesis, "PART_SHIFTS", False)
     assert _main_step(folder, 6) == (1, 2)
+
+
+def test_a_part_at_another_types_place_is_swapped_back(monkeypatch: pytest.MonkeyPatch):
+    """LeoCAD's picture of F20n manual 19 main step 5: a 2x6 brick, a 1x1 brick and a 1x2
+    slope, the detector's masks for the three all the same. The greedy puts the 1x1 brick
+    where the slope stands and the slope, turned, where the brick does; taking the pair again
+    ranks the same wrong place first. Each part put at the other type's place (:data:`SWAPS`)
+    finds the step."""
+    import mepnet.stage2.synthesis as synthesis
+
+    folder = Path(__file__).parent / "data" / "leocad_swap"
+    assert _main_step(folder, 5) == (3, 3)
+    monkeypatch.setattr(synthesis, "SWAPS", False)
+    assert _main_step(folder, 5)[0] < 3
+
+
+def test_a_part_in_another_parts_place_stands_on_its_bottom_inside_or_around_it():
+    """:func:`_in_place_of`: a 1x1 brick where a 1x2 slope stands takes the slope's bottom,
+    inside its footprint, centred first; a 2x2 plate where a 1x1 brick stands holds the
+    brick's footprint."""
+    from mepnet import _brickgeom as _bg
+    from mepnet.geom import placement_box
+    from mepnet.stage2.synthesis import _in_place_of
+
+    brick, slope, plate = (_bg.Component.primitive(p) for p in ("3005", "3040b", "3022"))
+    t = (3, 6, -2)
+    lo, hi = placement_box(slope, 1, t)
+    places = _in_place_of(brick, slope, 1, t)
+    assert places
+    for yaw, t2 in places:
+        lo2, hi2 = placement_box(brick, yaw, t2)
+        assert lo2[1] == lo[1]
+        assert all(lo[a] <= lo2[a] and hi2[a] <= hi[a] for a in (0, 2))
+    first = placement_box(brick, *places[0])
+    assert all(
+        abs((first[0][a] + first[1][a]) - (lo[a] + hi[a])) <= 1 for a in (0, 2)
+    )  # centred (to a half cell)
+    lo, hi = placement_box(brick, 0, t)
+    for yaw, t2 in _in_place_of(plate, brick, 0, t):
+        lo2, hi2 = placement_box(plate, yaw, t2)
+        assert lo2[1] == lo[1]
+        assert all(lo2[a] <= lo[a] and hi[a] <= hi2[a] for a in (0, 2))

@@ -545,16 +545,20 @@ def synthesize(
 #: solutions come within 0.001, and predicting later steps again on each cost 0.2-0.4 s a step
 #: for no gain.
 TIE = 1e-9
-#: ... except solutions within this much that fill the same boxes and are drawn alike
-#: (:func:`_alike`; a part turned about itself whose difference the picture barely shows: a
-#: side stud peeking out by a few pixels, which another renderer's picture then scores a
-#: little apart either way).
+#: ... except solutions within this much that are drawn alike (:func:`_alike`; a part turned
+#: about itself whose difference the picture barely shows: a side stud peeking out by a few
+#: pixels, which another renderer's picture then scores a little apart either way; a part
+#: hidden behind the others either way, a sliver of it in view).
 NEAR_TIE = 0.05
 #: Two drawings differing in at most this share of the image's pixels are drawn alike (32
 #: pixels of 256 x 256: 13 of a side stud peeking out past its brick, 67 of one in view).
 ALIKE_SHARE = 32 / 256**2
 #: Two drawings differ at a pixel where a colour channel differs by more than this (0-255).
 DRAWN_LEVEL = 24
+#: Whether a near tie must also fill the same boxes as the kept solution (as before stop 54:
+#: LeoCAD's picture of F20n manual 0 step 7 scores a 1x1 brick hidden far off 0.009 above the
+#: true place, hidden too, drawn 17 pixels apart; kept, step 10's picture settles it).
+NEAR_TIE_BOXES = False
 #: Ties kept per step, best first.
 MAX_TIES = 3
 
@@ -605,10 +609,12 @@ def _ties(
             continue
         if same(alt, preds) or any(same(alt, o) for o in out):
             continue
-        if s < score - TIE:  # a near tie: the same boxes, drawn alike
+        if s < score - TIE:  # a near tie: drawn alike
             if kept is None:
                 kept = (boxes(preds), _drawing(ctx, preds))
-            if boxes(alt) != kept[0] or not _alike(_drawing(ctx, alt), kept[1], w * h):
+            if (NEAR_TIE_BOXES and boxes(alt) != kept[0]) or not _alike(
+                _drawing(ctx, alt), kept[1], w * h
+            ):
                 continue
         out.append(alt)
     return [_placements(alt) for alt in out]
@@ -891,6 +897,34 @@ def _solve(
             )
             if alt_score > score + 1e-6:
                 preds, score, taken, options = alt_preds, alt_score, alt_taken, alt_options
+    # a part put at another type's place: the greedy placed one part where another belongs
+    # (every type's mask is the step's whole change, and its colour did not outweigh the
+    # other's place fitting its shape better), the other fitted what was left; taking the pair
+    # again ranks the same wrong place first (:data:`SWAPS`)
+    swapped: set[First] = set()
+    while SWAPS and len(taken) == total >= 2 and score < WELL_EXPLAINED and _clock() < deadline:
+        trials = [
+            (a, g)
+            for a, fa in enumerate(taken)
+            for fb in taken
+            if fa[0] != fb[0]
+            for g in _in_place_of(types[fa[0]].component, types[fb[0]].component, fb[1], fb[2])
+            if (fa[0], *g) not in swapped
+        ]
+        better = False
+        for a, g in trials:
+            if _clock() >= deadline:
+                break
+            head = (taken[a][0], *g)
+            swapped.add(head)
+            rest = [f for x, f in enumerate(taken) if x != a and not _overlaps(types, f, head)]
+            alt_preds, alt_taken, _, alt_score = attempt_kept([head], rest)
+            if alt_score > score + 1e-6:
+                preds, score, taken = alt_preds, alt_score, alt_taken
+                better = True
+                break
+        if not better:
+            break
     # identical parts stacked straight up: the lower ones show little until the ones above
     # them are placed, and the upper ones are not valid before them, so a column of them is
     # searched whole (its placements ranked as one component) and the rest solved greedily;
@@ -1100,6 +1134,47 @@ def _groups(types: list[SynthesisType], taken: list[First]) -> list[list[int]]:
     return [g for g in out.values() if 1 < len(g) < len(taken)]
 
 
+_HIGH = 1 << 11
+
+
+def _in_place_of(
+    comp: _bg.Component, other: _bg.Component, yaw: int, t: tuple[int, int, int]
+) -> list[tuple[int, tuple[int, int, int]]]:
+    """The placements of ``comp`` standing where ``other`` stands at ``(yaw, t)``: each yaw,
+    its box's bottom on the other's, its footprint inside the other's or holding it (a 1x1
+    brick in each cell of a 1x2 slope's place), nearest the other's centre first, at most
+    :data:`SWAP_PLACES`."""
+    lo, hi = placement_box(other, yaw, t)
+    out: list[tuple[float, int, tuple[int, int, int]]] = []
+    for y in range(4):
+        up = (0, _HIGH, 0)  # its box about its origin, raised where no part reaches the ground
+        lo2, hi2 = (
+            tuple(v - o for v, o in zip(b, up, strict=True)) for b in placement_box(comp, y, up)
+        )
+        spans = []
+        for a in (0, 2):
+            size, room = hi2[a] - lo2[a], hi[a] - lo[a]
+            first, last = (lo[a], hi[a] - size) if size <= room else (hi[a] - size, lo[a])
+            spans.append(range(first, last + 1))
+        for x0 in spans[0]:
+            for z0 in spans[1]:
+                t2 = (x0 - lo2[0], lo[1] - lo2[1], z0 - lo2[2])
+                if any(comp.same_placement(y, t2, yy, tt) for _, yy, tt in out):
+                    continue
+                centre = abs(2 * x0 + hi2[0] - lo2[0] - lo[0] - hi[0]) + abs(
+                    2 * z0 + hi2[2] - lo2[2] - lo[2] - hi[2]
+                )
+                out.append((centre, y, t2))
+    out.sort(key=lambda c: c[0])
+    return [(y, t2) for _, y, t2 in out[:SWAP_PLACES]]
+
+
+def _overlaps(types: list[SynthesisType], f: First, g: First) -> bool:
+    """Whether the boxes of two decisions overlap."""
+    (la, ha), (lb, hb) = (placement_box(types[d[0]].component, d[1], d[2]) for d in (f, g))
+    return all(la[x] <= hb[x] and lb[x] <= ha[x] for x in range(3))
+
+
 def _seen_alike(a: _Drawn, b: _Drawn, depth: np.ndarray) -> bool:
     """Whether two candidates drawn alone (:func:`_draw_alone`) show alike (:func:`_alike`) in
     front of a shape drawn at ``depth`` (the whole image's), compared over both their boxes (a
@@ -1219,6 +1294,12 @@ PAIRS = True
 PAIR_CHOICES = 4
 #: Passes over the pairs (a pair taken again may leave another pair to mend).
 PAIR_PASSES = 2
+#: Whether a step of two or more parts explained worse than :data:`WELL_EXPLAINED` also has
+#: each part put at the place of each part of another type, the others kept but the one
+#: there, which is placed again (:func:`_in_place_of`).
+SWAPS = True
+#: Placements tried for a part at another's place (per yaw and cell of the other's footprint).
+SWAP_PLACES = 4
 #: Whether a step adding several identical parts explained worse than :data:`CLOSE`
 #: is also solved with them stacked in one column (:func:`_columns`).
 COLUMNS = True
