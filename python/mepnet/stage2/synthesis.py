@@ -898,7 +898,8 @@ def _solve(
             if alt_score > score + 1e-6:
                 preds, score, taken, options = alt_preds, alt_score, alt_taken, alt_options
     # a part put at another type's place: the greedy placed one part where another belongs
-    # (every type's mask is the step's whole change, and its colour did not outweigh the
+    # (where the detector finds the types about as likely, as on other renderers' pictures,
+    # every type's mask is the step's whole change, and the part's colour did not outweigh the
     # other's place fitting its shape better), the other fitted what was left; taking the pair
     # again ranks the same wrong place first (:data:`SWAPS`)
     swapped: set[First] = set()
