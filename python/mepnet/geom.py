@@ -43,6 +43,20 @@ def placement_box(
     return box
 
 
+#: How high :func:`component_box` places a component: no part reaches the ground from there.
+_LIFT = 1 << 10
+
+
+def component_box(
+    component: Component, yaw: int
+) -> tuple[tuple[int, int, int], tuple[int, int, int]]:
+    """The lattice box ``component`` fills turned by ``yaw``, about its origin (as
+    :func:`placement_box` at ``t`` = 0, where a part reaching below its origin would be
+    below the ground)."""
+    lo, hi = placement_box(component, yaw, (0, _LIFT, 0))
+    return (lo[0], lo[1] - _LIFT, lo[2]), (hi[0], hi[1] - _LIFT, hi[2])
+
+
 def rotate_lattice(
     p: tuple[int, int, int] | list[int], yaw: int, t: tuple[int, int, int] | list[int] = (0, 0, 0)
 ) -> tuple[int, int, int]:
@@ -105,6 +119,7 @@ def submodule_from_placed(
 ATTACH_KINDS = ("on_studs", "from_below", "ground")
 
 __all__ = [
+    "component_box",
     "placement_box",
     "ATTACH_KINDS",
     "LDU_PER_CELL",

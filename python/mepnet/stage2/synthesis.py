@@ -33,7 +33,14 @@ import numpy as np
 
 from mepnet import _brickgeom as _bg
 from mepnet.errors import ManualFormatError
-from mepnet.geom import LDU_PER_CELL, BrickGeomError, placement_box, rotate_lattice, rotate_ldu
+from mepnet.geom import (
+    LDU_PER_CELL,
+    BrickGeomError,
+    component_box,
+    placement_box,
+    rotate_lattice,
+    rotate_ldu,
+)
 from mepnet.stage2.base import Prediction, Predictor, StepContext
 from mepnet.state import (
     CHANGE_THRESHOLD,
@@ -1113,6 +1120,16 @@ def _step_turns(types: list[SynthesisType], taken: list[First]) -> list[list[Fir
     return out
 
 
+_Box = tuple[tuple[int, int, int], tuple[int, int, int]]
+
+
+def _boxes_meet(a: _Box, b: _Box, gap: int) -> bool:
+    """Whether two lattice boxes (lowest and highest cells) come within ``gap`` cells of each
+    other along every axis (0: they overlap; 1: they overlap or meet, corners included)."""
+    (la, ha), (lb, hb) = a, b
+    return all(la[x] <= hb[x] + gap and lb[x] <= ha[x] + gap for x in range(3))
+
+
 def _groups(types: list[SynthesisType], taken: list[First]) -> list[list[int]]:
     """The step's decisions in groups that touch (their boxes overlap or meet, corners
     included), as indices into ``taken``, those of two or more parts and not the whole step."""
@@ -1126,16 +1143,12 @@ def _groups(types: list[SynthesisType], taken: list[First]) -> list[list[int]]:
 
     for a in range(len(taken)):
         for b in range(a + 1, len(taken)):
-            (la, ha), (lb, hb) = boxes[a], boxes[b]
-            if all(la[x] <= hb[x] + 1 and lb[x] <= ha[x] + 1 for x in range(3)):
+            if _boxes_meet(boxes[a], boxes[b], 1):
                 group[root(b)] = root(a)
     out: dict[int, list[int]] = {}
     for a in range(len(taken)):
         out.setdefault(root(a), []).append(a)
     return [g for g in out.values() if 1 < len(g) < len(taken)]
-
-
-_HIGH = 1 << 11
 
 
 def _in_place_of(
@@ -1148,10 +1161,7 @@ def _in_place_of(
     lo, hi = placement_box(other, yaw, t)
     out: list[tuple[float, int, tuple[int, int, int]]] = []
     for y in range(4):
-        up = (0, _HIGH, 0)  # its box about its origin, raised where no part reaches the ground
-        lo2, hi2 = (
-            tuple(v - o for v, o in zip(b, up, strict=True)) for b in placement_box(comp, y, up)
-        )
+        lo2, hi2 = component_box(comp, y)
         spans = []
         for a in (0, 2):
             size, room = hi2[a] - lo2[a], hi[a] - lo[a]
@@ -1172,8 +1182,8 @@ def _in_place_of(
 
 def _overlaps(types: list[SynthesisType], f: First, g: First) -> bool:
     """Whether the boxes of two decisions overlap."""
-    (la, ha), (lb, hb) = (placement_box(types[d[0]].component, d[1], d[2]) for d in (f, g))
-    return all(la[x] <= hb[x] and lb[x] <= ha[x] for x in range(3))
+    a, b = (placement_box(types[d[0]].component, d[1], d[2]) for d in (f, g))
+    return _boxes_meet(a, b, 0)
 
 
 def _seen_alike(a: _Drawn, b: _Drawn, depth: np.ndarray) -> bool:
