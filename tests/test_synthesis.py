@@ -268,7 +268,9 @@ def test_a_part_standing_apart_on_the_ground_is_found(
     m = load_manual(manual_from_ldraw(APART, tmp_path))
     run = run_manual(m, make_predictor("synthesis"), teacher_forced=True)
     assert step_matches(run, run.main.steps[-1]) == 1
-    monkeypatch.setattr(synthesis, "WIDE_BELOW", float("-inf"))  # the ground beside the base only
+    # the ground beside the base only
+    monkeypatch.setattr(synthesis, "WIDE_BELOW", float("-inf"))
+    monkeypatch.setattr(synthesis, "APART_PX", 10**9)
     narrow = run_manual(m, make_predictor("synthesis"), teacher_forced=True)
     assert step_matches(narrow, narrow.main.steps[-1]) == 0
 
@@ -359,6 +361,7 @@ def test_a_part_a_stud_from_the_base_is_found(tmp_path: Path, monkeypatch: pytes
 
     m = load_manual(manual_from_ldraw(NEAR, tmp_path))
     monkeypatch.setattr(synthesis, "WIDE_BELOW", float("-inf"))  # only the ground part asks
+    monkeypatch.setattr(synthesis, "APART_PX", 10**9)
     monkeypatch.setattr(synthesis, "WIDE_MARGIN", 1.0)  # no part apart: no margin asked
     run = run_manual(m, make_predictor("synthesis"), teacher_forced=True)
     assert step_matches(run, run.main.steps[-1]) == 1
@@ -1021,6 +1024,7 @@ def test_a_part_apart_that_took_another_parts_place_is_moved_with_it(
 
     assert _main_step(study / "manual_00980007", 7) == (6, 6)
     monkeypatch.setattr(synthesis, "WIDE_BELOW", 0.8)
+    monkeypatch.setattr(synthesis, "APART_PX", 10**9)  # the tile apart would ask on its own
     # (a placed part explaining only the pixels it draws in the picture's colour, ``CLAIM_OFF``,
     # mends one of the two on its own)
     monkeypatch.setattr(synthesis, "CLAIM_OFF", float("inf"))
@@ -1366,6 +1370,22 @@ def test_a_part_at_another_types_place_is_swapped_back(monkeypatch: pytest.Monke
     assert _main_step(folder, 5) == (3, 3)
     monkeypatch.setattr(synthesis, "SWAPS", False)
     assert _main_step(folder, 5)[0] < 3
+
+
+def test_a_part_standing_apart_in_plain_view_is_found_by_the_wide_search(
+    monkeypatch: pytest.MonkeyPatch,
+):
+    """Our picture of F20p manual 17 main step 5: five parts, one a 1x1 round plate on the
+    ground apart from the model, drawn in plain view. The solution hides it inside the model
+    and explains the picture 0.88, over :data:`WIDE_BELOW`, so the ground apart was never
+    searched; the changed pixels it leaves far from anything drawn (:func:`_changed_apart`)
+    have the step solved with the ground searched wherever the picture changed."""
+    import mepnet.stage2.synthesis as synthesis
+
+    folder = Path(__file__).parent / "data" / "apart"
+    assert _main_step(folder, 5) == (5, 5)
+    monkeypatch.setattr(synthesis, "APART_PX", 10**9)
+    assert _main_step(folder, 5) == (4, 5)
 
 
 def test_a_part_in_another_parts_place_stands_on_its_bottom_inside_or_around_it():

@@ -454,7 +454,8 @@ def synthesize(
 
     Parts stand on the ground right beside the base shape (on a build's first step: anywhere
     the picture changed); when the solution explains the picture worse than
-    :data:`WIDE_BELOW`, the step is solved again with the ground searched wherever the picture
+    :data:`WIDE_BELOW`, or leaves changed pixels far from anything drawn
+    (:func:`_changed_apart`: a part standing apart in plain view), the step is solved again with the ground searched wherever the picture
     shows a change (a part standing on its own, away from the base: see ``abys_ranked``'s
     ``wide_ground``); explained better, each part the solution stands on the ground is placed
     again last so (:data:`WIDE_ON_GROUND`). Such a solution is kept when it explains the
@@ -491,7 +492,11 @@ def synthesize(
         ctx, types, time_limit_s, picture, tone, first, mask, edges, deadline
     )
     searched_wide = first
-    if score < WIDE_BELOW and not first and _clock() < deadline:
+    if (
+        not first
+        and (score < WIDE_BELOW or _changed_apart(ctx, preds, mask))
+        and _clock() < deadline
+    ):
         wide, wide_score, wide_tried = _solve(
             ctx, types, time_limit_s, picture, tone, True, mask, edges, deadline
         )
@@ -709,6 +714,26 @@ WIDE_VISIBLE = 0.8
 #: footprint box stands beside it, not apart: a brick half a stud behind the model is as
 #: hidden by it as one touching it (the misread this guards against stood 15 studs behind).
 WIDE_BESIDE = 2
+
+
+#: A change the solution draws nothing near: at least this many changed pixels ...
+APART_PX = 20
+#: ... more than this many pixels from anything the base and the solution draw (a part
+#: standing on its own, apart from the model, that the solution put elsewhere: F20p manual 17
+#: step 5, a round plate on the ground beside the model drawn in plain view, hidden inside the
+#: model by a solution explaining the picture 0.88, over :data:`WIDE_BELOW`) ...
+APART_GAP = 3
+
+
+def _changed_apart(ctx: StepContext, preds: list[Prediction], mask: np.ndarray) -> bool:
+    """Whether the step's changed pixels (``mask``) leave at least :data:`APART_PX` more than
+    :data:`APART_GAP` pixels from anything the base with ``preds`` draws: the step is solved
+    again with the ground searched wherever the picture changed (:func:`synthesize`)."""
+    w, h = ctx.image_size
+    near = _bg.render(_with_parts(ctx, preds), ctx.camera, w, h).ids >= 0
+    for _ in range(APART_GAP):
+        near = grown_4(near)
+    return int((mask & ~near).sum()) >= APART_PX
 
 
 def _wide_wins(
