@@ -237,9 +237,11 @@ PART_LIGHT = (0.3, 1.2)
 def step_change(ctx: StepContext, picture: np.ndarray) -> tuple[np.ndarray, Tone]:
     """The change map of a step (:func:`mepnet.state.change_map`, lines tolerated by
     :func:`tolerate_lines`): where its ``picture`` (H, W, 3 floats in [0, 1], the manual's
-    image size) differs from the base shape rendered with the step's camera; and the tone it
-    compared by (:class:`Tone`: the tone fit and whether the renderer casts shadows, for
-    :func:`synthesize`'s colours)."""
+    image size) differs from the base shape rendered with the step's camera, and, where the
+    manual's own earlier picture of the view shows the base, from that picture (no change
+    where it explains the pixel; a change where it differs over a solid area by more than
+    :data:`PREVIOUS_WEAK`); and the tone it compared by (:class:`Tone`: the tone fit and
+    whether the renderer casts shadows, for :func:`synthesize`'s colours)."""
     w, h = ctx.image_size
     if w != h:
         raise ManualFormatError(f"{ctx.step.where}: synthesis needs square images, got {w}x{h}")
@@ -250,29 +252,81 @@ def step_change(ctx: StepContext, picture: np.ndarray) -> tuple[np.ndarray, Tone
     shades, evidence, factors = base_shades(ctx, w, tone) or (None, 0.0, None)
     change = change_map(image, state, tone, shades)
     shadows = SHADOWS and shades is not None and evidence > SHADOW_EVIDENCE
+    dark = None
     if shadows:
         # the renderer casts shadows: a new part's shadow on the base is no change, unless
         # one of the step's parts, in any light, could be what the picture shows there
         classes, _ = shades
         dark = shadowed(image, expected_colours(image, state, tone, shades)) & (classes >= 0)
-        for colour in {c.colour for c in ctx.step.components}:
-            rgb = np.asarray(_bg.colour_rgb(colour), np.float32) / 255.0 * tone[0] + tone[1]
-            dark &= ~shadowed(image, rgb[:, None, None], PART_LIGHT)
+        dark &= ~_part_coloured(ctx, image, tone)
         change[dark] = 0.0
     before = previous_picture(ctx)
     if before is not None:
         # a pixel the manual's own picture of the base explains has not changed, however
         # unlike ours its renderer draws
         picture_before, trusted = before
-        np.minimum(
-            change, np.where(trusted, previous_change(image, picture_before), 1.0), out=change
-        )
+        since = previous_change(image, picture_before)
+        np.minimum(change, np.where(trusted, since, 1.0), out=change)
+        if PREVIOUS_WEAK:
+            # a whole area the manual's own pictures draw apart, however little: a new part
+            # in front of one of a colour close to its own (not a line or a stud's outline
+            # resampled: those are a pixel or two wide)
+            weak = (since > PREVIOUS_WEAK) & trusted & (change <= CHANGE_THRESHOLD)
+            if dark is not None:
+                weak &= ~dark  # a cast shadow, not a part
+            # ... drawn in the colour of one of the step's parts, in some light
+            weak &= _part_coloured(ctx, image, tone)
+            weak = _solid(weak, PREVIOUS_WEAK_RADIUS)
+            change[weak] = np.minimum(since[weak] * (CHANGE_THRESHOLD / PREVIOUS_WEAK), 1.0)
     change = tolerate_lines(change, outline | drawn_edges(state))
     base_ids = _base_ids(ctx)  # drawn once if either fill needs them
     fill_enclosed(change, picture, ctx, None if before is None else before[0], base_ids)
     if FILL_COVERED:
         fill_covered(change, ctx, base_ids)
     return change, Tone(tone[0], tone[1], shadows, factors if PART_SHADES else None)
+
+
+#: Where the step's picture differs from the manual's own previous picture of the base by more
+#: than this (largest channel, in [0, 1]; :func:`mepnet.state.previous_change`), in the colour
+#: of one of the step's parts (:func:`_part_coloured`) and over a solid area (:func:`_solid`),
+#: the step changed there, under :data:`CHANGE_THRESHOLD` or not: against mepnet's drawing of
+#: the base another renderer's colours differ by about that much, its own two pictures only
+#: where something changed (LeoCAD's F20p manual 11 step 5: a dark blue 1x10 plate on a dark
+#: grey plate, both drawn dark, 0.13 apart at the median). 0: off.
+PREVIOUS_WEAK = 0.08
+#: ... over every square of ``2 PREVIOUS_WEAK_RADIUS + 1`` pixels it covers. (Without the
+#: colour, the studs of our own F20p manual 4 step 11, its previous picture drawn at another
+#: zoom, resampled, differ over 3 x 3 squares: 499 pixels more changed, the step wrong; a
+#: radius of 2 drops them and the plate's band too.)
+PREVIOUS_WEAK_RADIUS = 1
+
+
+def _part_coloured(ctx: StepContext, image: np.ndarray, tone: np.ndarray) -> np.ndarray:
+    """(H, W) bool: where the step's picture ``image`` ((3, H, W)) shows the colour of one of
+    its parts in some light (:data:`PART_LIGHT`), mapped by the page's ``tone``."""
+    out = np.zeros(image.shape[1:], bool)
+    for colour in {c.colour for c in ctx.step.components}:
+        rgb = np.asarray(_bg.colour_rgb(colour), np.float32) / 255.0 * tone[0] + tone[1]
+        out |= shadowed(image, rgb[:, None, None], PART_LIGHT)
+    return out
+
+
+def _solid(mask: np.ndarray, radius: int = 1) -> np.ndarray:
+    """``mask`` (H, W) bool opened by a square of ``2 radius + 1`` pixels: the pixels of the
+    squares it fills whole, no line or dot narrower than that."""
+    h, w = mask.shape
+    k = 2 * radius + 1
+    pad = np.pad(mask, radius)
+    core = np.ones_like(mask)
+    for dy in range(k):
+        for dx in range(k):
+            core &= pad[dy : dy + h, dx : dx + w]
+    pad = np.pad(core, radius)
+    out = np.zeros_like(mask)
+    for dy in range(k):
+        for dx in range(k):
+            out |= pad[dy : dy + h, dx : dx + w]
+    return out
 
 
 #: Whether a step's parts are compared with the picture with each face's brightness as the
