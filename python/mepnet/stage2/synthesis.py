@@ -252,15 +252,18 @@ def step_change(ctx: StepContext, picture: np.ndarray) -> tuple[np.ndarray, Tone
     shades, evidence, factors = base_shades(ctx, w, tone) or (None, 0.0, None)
     change = change_map(image, state, tone, shades)
     shadows = SHADOWS and shades is not None and evidence > SHADOW_EVIDENCE
-    dark = None
+    before = previous_picture(ctx)
+    coloured = (
+        _part_coloured(ctx, image, tone)
+        if shadows or (before is not None and PREVIOUS_WEAK)
+        else np.zeros(image.shape[1:], bool)
+    )
     if shadows:
         # the renderer casts shadows: a new part's shadow on the base is no change, unless
         # one of the step's parts, in any light, could be what the picture shows there
         classes, _ = shades
         dark = shadowed(image, expected_colours(image, state, tone, shades)) & (classes >= 0)
-        dark &= ~_part_coloured(ctx, image, tone)
-        change[dark] = 0.0
-    before = previous_picture(ctx)
+        change[dark & ~coloured] = 0.0
     if before is not None:
         # a pixel the manual's own picture of the base explains has not changed, however
         # unlike ours its renderer draws
@@ -268,14 +271,11 @@ def step_change(ctx: StepContext, picture: np.ndarray) -> tuple[np.ndarray, Tone
         since = previous_change(image, picture_before)
         np.minimum(change, np.where(trusted, since, 1.0), out=change)
         if PREVIOUS_WEAK:
-            # a whole area the manual's own pictures draw apart, however little: a new part
-            # in front of one of a colour close to its own (not a line or a stud's outline
-            # resampled: those are a pixel or two wide)
-            weak = (since > PREVIOUS_WEAK) & trusted & (change <= CHANGE_THRESHOLD)
-            if dark is not None:
-                weak &= ~dark  # a cast shadow, not a part
-            # ... drawn in the colour of one of the step's parts, in some light
-            weak &= _part_coloured(ctx, image, tone)
+            # a whole area the manual's own pictures draw apart, however little, in the colour
+            # of one of the step's parts (so no cast shadow): a new part in front of one of a
+            # colour close to its own (not a line or a stud's outline resampled: those are a
+            # pixel or two wide)
+            weak = (since > PREVIOUS_WEAK) & trusted & (change <= CHANGE_THRESHOLD) & coloured
             weak = _solid(weak, PREVIOUS_WEAK_RADIUS)
             change[weak] = np.minimum(since[weak] * (CHANGE_THRESHOLD / PREVIOUS_WEAK), 1.0)
     change = tolerate_lines(change, outline | drawn_edges(state))
@@ -314,19 +314,7 @@ def _part_coloured(ctx: StepContext, image: np.ndarray, tone: np.ndarray) -> np.
 def _solid(mask: np.ndarray, radius: int = 1) -> np.ndarray:
     """``mask`` (H, W) bool opened by a square of ``2 radius + 1`` pixels: the pixels of the
     squares it fills whole, no line or dot narrower than that."""
-    h, w = mask.shape
-    k = 2 * radius + 1
-    pad = np.pad(mask, radius)
-    core = np.ones_like(mask)
-    for dy in range(k):
-        for dx in range(k):
-            core &= pad[dy : dy + h, dx : dx + w]
-    pad = np.pad(core, radius)
-    out = np.zeros_like(mask)
-    for dy in range(k):
-        for dx in range(k):
-            out |= pad[dy : dy + h, dx : dx + w]
-    return out
+    return _max_filter(~_max_filter(~mask, radius), radius)
 
 
 #: Whether a step's parts are compared with the picture with each face's brightness as the
@@ -509,9 +497,9 @@ def synthesize(
     Parts stand on the ground right beside the base shape (on a build's first step: anywhere
     the picture changed); when the solution explains the picture worse than
     :data:`WIDE_BELOW`, or leaves changed pixels far from anything drawn
-    (:func:`_changed_apart`: a part standing apart in plain view), the step is solved again with the ground searched wherever the picture
-    shows a change (a part standing on its own, away from the base: see ``abys_ranked``'s
-    ``wide_ground``); explained better, each part the solution stands on the ground is placed
+    (:func:`_changed_apart`: a part standing apart in plain view), the step is solved again
+    with the ground searched wherever the picture shows a change (a part standing on its own,
+    away from the base: see ``abys_ranked``'s ``wide_ground``); explained better, each part the solution stands on the ground is placed
     again last so (:data:`WIDE_ON_GROUND`). Such a solution is kept when it explains the
     picture better: by any amount when it stands no more parts on the ground, none apart from
     the base (:func:`_apart`), else by :data:`WIDE_MARGIN`, and then only if each part it
