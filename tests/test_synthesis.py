@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import subprocess
 import sys
 from pathlib import Path
@@ -275,16 +276,24 @@ def test_a_part_standing_apart_on_the_ground_is_found(
     assert step_matches(narrow, narrow.main.steps[-1]) == 0
 
 
-def test_a_part_standing_apart_must_show_itself(tmp_path: Path):
+def test_a_part_standing_apart_must_show_itself(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
     """The wide ground search's solution is not taken when a part it stands on the ground is
     mostly hidden behind the base shape (it only mimics a change mask that missed part of the
     true placement); the part standing apart in full view is, and so is a part the narrow
-    solution placed the same way, and a part hidden just behind the base (beside it, not
-    apart: the generator stands parts there and draws them hidden)."""
+    solution placed the same way or stood apart elsewhere, and a part hidden just behind the
+    base (beside it, not apart: the generator stands parts there and draws them hidden)."""
+    import mepnet.stage2.synthesis as synthesis
     from mepnet import _brickgeom as _bg
     from mepnet.manual import answers_of
     from mepnet.stage2 import Prediction, StepContext
-    from mepnet.stage2.synthesis import WIDE_BESIDE, WIDE_VISIBLE, _ground_gap, _hidden_on_ground
+    from mepnet.stage2.synthesis import (
+        WIDE_BESIDE,
+        WIDE_VISIBLE,
+        _apart,
+        _ground_gap,
+        _hidden_on_ground,
+        _wide_wins,
+    )
 
     m = load_manual(manual_from_ldraw(APART, tmp_path))
     answers = answers_of(m)
@@ -339,6 +348,18 @@ def test_a_part_standing_apart_must_show_itself(tmp_path: Path):
     assert not _hidden_on_ground(
         ctx, [pred(front), Prediction(0, truth.component, None, None, failure="x")]
     )
+    # the narrow solution stood the entry's part apart elsewhere: moved, not new (APART_MOVED),
+    # and judged by how well it explains (no margin); a part of another entry is new
+    elsewhere = next(t for t in apart if t != behind and gap(t) != gap(behind))
+    assert not _hidden_on_ground(ctx, [pred(behind)], [pred(elsewhere)])
+    assert not _apart(ctx, [pred(behind)], [pred(elsewhere)])
+    assert _wide_wins(ctx, [pred(elsewhere)], 0.5, [pred(behind)], 0.51)
+    other = dataclasses.replace(pred(elsewhere), entry=1)
+    assert _hidden_on_ground(ctx, [pred(behind)], [other])
+    assert not _wide_wins(ctx, [other], 0.5, [pred(behind)], 0.51)
+    monkeypatch.setattr(synthesis, "APART_MOVED", False)
+    assert _hidden_on_ground(ctx, [pred(behind)], [pred(elsewhere)])
+    assert _apart(ctx, [pred(behind)], [pred(elsewhere)])
 
 
 #: A 2x4 brick, then a 1x2 brick on the ground a stud in front of it.
@@ -1450,3 +1471,33 @@ def test_a_part_in_another_parts_place_stands_on_its_bottom_inside_or_around_it(
         lo2, hi2 = placement_box(plate, yaw, t2)
         assert lo2[1] == lo[1]
         assert all(lo2[a] <= lo[a] and hi[a] <= hi2[a] for a in (0, 2))
+
+
+def test_a_part_a_cell_off_along_both_axes_is_moved_there(monkeypatch: pytest.MonkeyPatch):
+    """LeoCAD's pictures (tests/data/leocad_diagonal, LF20n manual 11's first nine steps): step 9
+    hangs a 2x2 round plate under the model, mostly hidden; the greedy puts it a cell off along
+    both x and z, where no move along one axis explains the picture better. Each part moved a
+    cell along both (:data:`CELL_DIAGONALS`) places it; without those moves it stays off."""
+    import mepnet.stage2.synthesis as synthesis
+
+    folder = Path(__file__).parent / "data" / "leocad_diagonal"
+    assert _main_step(folder, 9) == (5, 5)
+    monkeypatch.setattr(synthesis, "CELL_DIAGONALS", ())
+    assert _main_step(folder, 9) == (4, 5)
+
+
+def test_a_part_in_front_of_a_base_part_of_its_colour_is_not_penalised_however_it_is_shaded(
+    monkeypatch: pytest.MonkeyPatch,
+):
+    """LeoCAD's pictures (tests/data/leocad_behind, LF20q manual 10's first 17 steps): step 17
+    puts a dark blue 1x2 brick deep under the roof in front of a dark blue part of the base. The
+    picture does not change over most of it, and LeoCAD shades dark blue unlike mepnet, so its
+    pixels there are more than ``QUIET_LEVEL`` off the picture and counted against it: the
+    truth explained 0.58, a brick put a stud aside 0.62. Pixels drawn in front of a base part
+    of the part's own colour (``QUIET_BEHIND``) count neither way, and the step is right."""
+    import mepnet.stage2.synthesis as synthesis
+
+    folder = Path(__file__).parent / "data" / "leocad_behind"
+    assert _main_step(folder, 17) == (5, 5)
+    monkeypatch.setattr(synthesis, "QUIET_BEHIND", False)
+    assert _main_step(folder, 17) == (4, 5)

@@ -25,6 +25,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import time
+from collections import Counter
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any, NamedTuple
@@ -530,8 +531,10 @@ def synthesize(
     for t in types:
         mask |= t.mask
     edges = edge_map(picture) if picture is not None and EDGE_WEIGHT else None
+    # the base's colours as the step's camera draws them, for every solution's score
+    behind = _base_colours(ctx) if QUIET_BEHIND and QUIET_LEVEL > 0 else None
     preds, score, tried = _solve(
-        ctx, types, time_limit_s, picture, tone, first, mask, edges, deadline
+        ctx, types, time_limit_s, picture, tone, first, mask, edges, deadline, RANKED, behind
     )
     searched_wide = first
     if (
@@ -540,7 +543,7 @@ def synthesize(
         and _clock() < deadline
     ):
         wide, wide_score, wide_tried = _solve(
-            ctx, types, time_limit_s, picture, tone, True, mask, edges, deadline
+            ctx, types, time_limit_s, picture, tone, True, mask, edges, deadline, RANKED, behind
         )
         if _wide_wins(ctx, preds, score, wide, wide_score):
             preds, score, tried, searched_wide = wide, wide_score, wide_tried, True
@@ -556,6 +559,7 @@ def synthesize(
                 edges,
                 deadline,
                 DEEP_RANKED,
+                behind,
             )
             tried += deep_tried
             if _wide_wins(ctx, preds, score, deep, deep_score):
@@ -578,7 +582,7 @@ def synthesize(
             )
             if len(moved) < len(preds) or not all(q.placed for q in moved):
                 continue
-            moved_score = _explained(ctx, moved, mask, picture, tone, edges)
+            moved_score = _explained(ctx, moved, mask, picture, tone, edges, behind)
             tried.append((moved_score, moved))
             if _wide_wins(ctx, preds, score, moved, moved_score):
                 preds, score = moved, moved_score
@@ -756,6 +760,13 @@ WIDE_VISIBLE = 0.8
 #: footprint box stands beside it, not apart: a brick half a stud behind the model is as
 #: hidden by it as one touching it (the misread this guards against stood 15 studs behind).
 WIDE_BESIDE = 2
+#: Whether a part the wider search stands apart from the base is judged as new (the margin,
+#: the share it shows) only when the solution it would replace stands no part of its callout
+#: entry apart elsewhere: moving a part that already stood apart puts no new one there, and the
+#: two solutions are compared by how well they explain the picture (LeoCAD's LF20q manual 13
+#: step 10: a blue slope standing behind the model, its top in view, the narrow solution's
+#: turned the wrong way three studs off, explaining 0.78 against the truth's 0.82).
+APART_MOVED = True
 
 
 #: A change the solution draws nothing near: at least this many changed pixels ...
@@ -814,13 +825,26 @@ def _apart(
     ctx: StepContext, preds: list[Prediction], before: Sequence[Prediction] = ()
 ) -> list[Prediction]:
     """The parts of ``preds`` standing on the ground apart from the base (more than
-    :data:`WIDE_BESIDE` cells outside its footprint box) and not placed so in ``before``."""
+    :data:`WIDE_BESIDE` cells outside its footprint box) and not placed so in ``before``;
+    where ``before`` stands parts of a callout entry apart elsewhere (:data:`APART_MOVED`),
+    as many of the entry's parts apart in ``preds`` are moved, not new, and left out too."""
+
+    def away(ps: Sequence[Prediction]) -> list[Prediction]:
+        return [p for p in ps if (_ground_gap(ctx, p) or 0) > WIDE_BESIDE]
+
     known = {(q.component, q.yaw, q.t) for q in before if q.placed}
-    return [
-        p
-        for p in preds
-        if (p.component, p.yaw, p.t) not in known and (_ground_gap(ctx, p) or 0) > WIDE_BESIDE
-    ]
+    new = [p for p in away(preds) if (p.component, p.yaw, p.t) not in known]
+    if not APART_MOVED:
+        return new
+    kept = {(p.component, p.yaw, p.t) for p in preds if p.placed}
+    moved = Counter(q.entry for q in away(before) if (q.component, q.yaw, q.t) not in kept)
+    out = []
+    for p in new:
+        if moved[p.entry] > 0:
+            moved[p.entry] -= 1
+        else:
+            out.append(p)
+    return out
 
 
 def _hidden_on_ground(
@@ -855,13 +879,14 @@ def _solve(
     picture_edges: np.ndarray | None,
     deadline: float = float("inf"),
     ranked: int = RANKED,
+    base_colours: np.ndarray | None = None,
 ) -> tuple[list[Prediction], float, list[tuple[float, list[Prediction]]]]:
     """:func:`synthesize`'s greedy with its revisits, the ground searched beside the base or
     (``wide``) wherever the picture changed, no revisit begun after ``deadline``
     (:func:`_clock`); ``mask``, ``picture_edges``: what :func:`_explained` weighs (the types'
     masks together, the picture's :func:`edge_map`); ``ranked``: the placements each of the
-    greedy's rounds scores. Returns the predictions, how well they
-    explain the picture, and every complete solution tried with its score."""
+    greedy's rounds scores; ``base_colours``: :func:`_explained`'s. Returns the predictions, how
+    well they explain the picture, and every complete solution tried with its score."""
     w, h = ctx.image_size
     memo: dict[frozenset[First], tuple[Any, list[tuple[float, First]]]] = {}
     drawn: dict[First, _Drawn] = {}
@@ -881,7 +906,7 @@ def _solve(
         )
         if len(p) < total:
             return p, t, o, float("-inf")
-        score = _explained(ctx, p, mask, picture, tone, picture_edges)
+        score = _explained(ctx, p, mask, picture, tone, picture_edges, base_colours)
         tried.append((score, p))
         return p, t, o, score
 
@@ -1047,9 +1072,10 @@ def _solve(
     # each part moved a cell on its own, the others where they are: of two bricks side by side,
     # the greedy's rounds rank a cell off the true one first for each (the detector's mask
     # and keypoint favour it), the second fits what the first left, and a whole-step shift
-    # moves both
+    # moves both; and a cell along both axes (:data:`CELL_DIAGONALS`)
     def cell_moves(f: First) -> list[First]:
-        return [(f[0], f[1], (f[2][0] + dx, f[2][1], f[2][2] + dz)) for dx, dz in SHIFTS[:4]]
+        i, yaw, (x, y, z) = f
+        return [(i, yaw, (x + dx, y, z + dz)) for dx, dz in (*SHIFTS[:4], *CELL_DIAGONALS)]
 
     if PART_SHIFTS and len(taken) == total >= 2:
         each_part(cell_moves)
@@ -1391,10 +1417,13 @@ SHIFTS = ((1, 0), (-1, 0), (0, 1), (0, -1), (2, 0), (-2, 0), (0, 2), (0, -2))
 #: fresh set LF20c it moved 2 single parts that were right a cell off, and mended none of
 #: F20c's (stop 45): a lone part's shift wins on noise more often than on evidence.
 SHIFT_MIN_PARTS = 2
-
-#: Whether each part of a step of two or more is also moved a cell (:data:`SHIFTS`' first four)
-#: on its own, the others kept (:func:`_solve`).
+#: Whether each part of a step of two or more is also moved a cell (:data:`SHIFTS`' first four,
+#: and :data:`CELL_DIAGONALS`) on its own, the others kept (:func:`_solve`).
 PART_SHIFTS = True
+#: The moves of each part on its own (:data:`PART_SHIFTS`) beyond a cell along x or z: a cell
+#: along both (LeoCAD's LF20n manual 11 step 9: a 2x2 round plate hung under the model,
+#: mostly hidden, placed a cell off along both; no single move along one axis explains more).
+CELL_DIAGONALS: tuple[tuple[int, int], ...] = ((1, 1), (1, -1), (-1, 1), (-1, -1))
 #: How much better (:func:`_explained`) a step solved with a column must explain its picture
 #: than the step solved without one ...
 COLUMN_MARGIN = 0.03
@@ -1629,6 +1658,20 @@ def _colour_off(
 #: in [0, 1], after the tone fit) of the picture's colour counts neither for nor against it in
 #: :func:`_explained`'s IoU (0: counts against).
 QUIET_LEVEL = 0.1
+#: Whether a step's part drawn where the picture did not change, in front of a part of the
+#: base of its own colour, counts neither for nor against it either, whatever colour the
+#: picture draws there (:func:`_base_colours`).
+QUIET_BEHIND = True
+
+
+def _base_colours(ctx: StepContext) -> np.ndarray:
+    """(H, W): the LDraw colour of the base's part drawn at each pixel with the step's camera
+    (-1: none)."""
+    w, h = ctx.image_size
+    ids = _bg.render(ctx.base, ctx.camera, w, h, line_px=0.0).ids
+    colours = np.array([ctx.base.colour(i) for i in range(len(ctx.base))] + [-1], np.int64)
+    return colours[ids]  # the page (-1) indexes the last
+
 
 #: A step's part placed where nothing of it is drawn (hidden behind the base or the step's other
 #: parts) costs this share of :func:`_explained`'s score, as a part not placed does: a manual
@@ -1643,12 +1686,14 @@ def _explained(
     picture: np.ndarray | None,
     tone: Tone,
     picture_edges: np.ndarray | None = None,
+    base_colours: np.ndarray | None = None,
 ) -> float:
     """How well a step's predicted parts together explain its picture: the IoU of their
     visible pixels with the changed pixels ``mask``, less the colour residual over them, less
     the edge disagreement (:func:`_edge_disagreement`, :data:`EDGE_WEIGHT`,
     :data:`SHOWN_EDGE_WEIGHT`; ``picture_edges``: the picture's :func:`edge_map`, None: not
-    weighed)."""
+    weighed). ``base_colours``: :func:`_base_colours` of the step when the caller has them
+    (else drawn here when :data:`QUIET_BEHIND` needs them)."""
     w, h = ctx.image_size
     n0 = len(ctx.base)
     asm = _with_parts(ctx, preds)
@@ -1661,7 +1706,14 @@ def _explained(
         if QUIET_LEVEL > 0:
             # a part drawn in the picture's own colour where the picture did not change (in
             # front of a part of its colour) is no evidence against it: out of the IoU
-            union -= int(((off < QUIET_LEVEL) & ~mask[new]).sum())
+            quiet = (off < QUIET_LEVEL) & ~mask[new]
+            if QUIET_BEHIND:
+                # ... nor where it stands in front of a part of the base of its own colour,
+                # however the manual's renderer shades that colour
+                behind = _base_colours(ctx) if base_colours is None else base_colours
+                part = np.array([asm.colour(i) for i in range(n0, len(asm))], np.int64)
+                quiet |= ~mask[new] & (behind[new] == part[r.ids[new] - n0])
+            union -= int(quiet.sum())
     score = float((new & mask).sum() / union) if union else 0.0
     if off is not None:
         score -= COLOUR_WEIGHT * float(off.mean())
