@@ -1116,6 +1116,8 @@ def _solve(
     # ... and each group of them that touch (:func:`_groups`) turned the same way, the others
     # kept: two jumper plates side by side turned across, beside parts placed elsewhere
     groups = _groups(types, taken) if GROUP_TURNS and len(taken) == total > 2 else []
+    if PAIR_TURNS and len(taken) == total > 2:
+        groups += [g for g in _touching_pairs(types, taken) if g not in groups]
     for group in groups:
         for turned in _step_turns(types, [taken[k] for k in group]):
             if score >= CLOSE or _clock() >= deadline:
@@ -1244,6 +1246,18 @@ def _groups(types: list[SynthesisType], taken: list[First]) -> list[list[int]]:
     return [g for g in out.values() if 1 < len(g) < len(taken)]
 
 
+def _touching_pairs(types: list[SynthesisType], taken: list[First]) -> list[list[int]]:
+    """Each two of the step's decisions of one type whose boxes overlap or meet (corners
+    included), as indices into ``taken``."""
+    boxes = [placement_box(types[i].component, yaw, t) for i, yaw, t in taken]
+    return [
+        [a, b]
+        for a in range(len(taken))
+        for b in range(a + 1, len(taken))
+        if taken[a][0] == taken[b][0] and _boxes_meet(boxes[a], boxes[b], 1)
+    ]
+
+
 def _in_place_of(
     comp: _bg.Component, other: _bg.Component, yaw: int, t: tuple[int, int, int]
 ) -> list[tuple[int, tuple[int, int, int]]]:
@@ -1330,6 +1344,11 @@ TIE_CHOICES = 3
 #: Whether a step explained worse than :data:`CLOSE` has each group of its parts that touch
 #: (:func:`_groups`) turned together (:func:`_step_turns`), the others kept (:func:`_solve`).
 GROUP_TURNS = True
+#: Whether each two touching parts of one type (:func:`_touching_pairs`) are turned together
+#: too, the others kept, in a step of three or more parts: F20r manual 13 step 13, four 1x2
+#: grille bricks in a row, two of them placed across the row side by side; the four touch, so
+#: the only group is the whole row.
+PAIR_TURNS = True
 #: Whether a step of a single part explained worse than :data:`CLOSE` (not only than
 #: :data:`WELL_EXPLAINED`) has its round's next choices tried (:func:`_solve`): each is one
 #: placement scored, no greedy run after it.
