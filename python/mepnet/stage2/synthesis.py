@@ -532,7 +532,9 @@ def synthesize(
         mask |= t.mask
     edges = edge_map(picture) if picture is not None and EDGE_WEIGHT else None
     # the base's colours as the step's camera draws them, for every solution's score
-    behind = _base_colours(ctx) if QUIET_BEHIND and QUIET_LEVEL > 0 else None
+    behind = (
+        _base_colours(ctx) if picture is not None and QUIET_BEHIND and QUIET_LEVEL > 0 else None
+    )
     preds, score, tried = _solve(
         ctx, types, time_limit_s, picture, tone, first, mask, edges, deadline, RANKED, behind
     )
@@ -1225,10 +1227,21 @@ def _boxes_meet(a: _Box, b: _Box, gap: int) -> bool:
     return all(la[x] <= hb[x] + gap and lb[x] <= ha[x] + gap for x in range(3))
 
 
-def _groups(types: list[SynthesisType], taken: list[First]) -> list[list[int]]:
-    """The step's decisions in groups that touch (their boxes overlap or meet, corners
-    included), as indices into ``taken``, those of two or more parts and not the whole step."""
+def _meeting(types: list[SynthesisType], taken: list[First]) -> list[tuple[int, int]]:
+    """Each two of the step's decisions whose boxes overlap or meet (corners included), as
+    indices into ``taken``, the first lower."""
     boxes = [placement_box(types[i].component, yaw, t) for i, yaw, t in taken]
+    return [
+        (a, b)
+        for a in range(len(taken))
+        for b in range(a + 1, len(taken))
+        if _boxes_meet(boxes[a], boxes[b], 1)
+    ]
+
+
+def _groups(types: list[SynthesisType], taken: list[First]) -> list[list[int]]:
+    """The step's decisions in groups that touch (:func:`_meeting`), as indices into
+    ``taken``, those of two or more parts and not the whole step."""
     group = list(range(len(taken)))
 
     def root(a: int) -> int:
@@ -1236,10 +1249,8 @@ def _groups(types: list[SynthesisType], taken: list[First]) -> list[list[int]]:
             a = group[a]
         return a
 
-    for a in range(len(taken)):
-        for b in range(a + 1, len(taken)):
-            if _boxes_meet(boxes[a], boxes[b], 1):
-                group[root(b)] = root(a)
+    for a, b in _meeting(types, taken):
+        group[root(b)] = root(a)
     out: dict[int, list[int]] = {}
     for a in range(len(taken)):
         out.setdefault(root(a), []).append(a)
@@ -1247,15 +1258,9 @@ def _groups(types: list[SynthesisType], taken: list[First]) -> list[list[int]]:
 
 
 def _touching_pairs(types: list[SynthesisType], taken: list[First]) -> list[list[int]]:
-    """Each two of the step's decisions of one type whose boxes overlap or meet (corners
-    included), as indices into ``taken``."""
-    boxes = [placement_box(types[i].component, yaw, t) for i, yaw, t in taken]
-    return [
-        [a, b]
-        for a in range(len(taken))
-        for b in range(a + 1, len(taken))
-        if taken[a][0] == taken[b][0] and _boxes_meet(boxes[a], boxes[b], 1)
-    ]
+    """Each two of the step's decisions of one type that touch (:func:`_meeting`), as indices
+    into ``taken``."""
+    return [[a, b] for a, b in _meeting(types, taken) if taken[a][0] == taken[b][0]]
 
 
 def _in_place_of(
