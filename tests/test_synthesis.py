@@ -1527,3 +1527,75 @@ def test_two_touching_parts_of_a_row_are_turned_together(monkeypatch: pytest.Mon
     assert _main_step(folder, 13) == (6, 6)
     monkeypatch.setattr(synthesis, "PAIR_TURNS", False)
     assert _main_step(folder, 13) == (4, 6)
+
+
+def test_a_plan_computes_each_steps_change_map_once_and_only_for_the_same_inputs(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+):
+    """Within ``shared_changes`` (a plan's run) a step's change map is computed once for its
+    prediction and its check; another base, picture or earlier step computes it again, the
+    caller may change the map it gets, and outside a plan every call computes (a module
+    setting changed between two calls counts). The plan is the same either way."""
+    import mepnet.stage2.synthesis as synthesis
+    from mepnet.manual import answers_of
+    from mepnet.plan import run_manual
+    from mepnet.stage2 import StepContext, make_predictor
+    from mepnet.stage2.base import EarlierStep
+    from mepnet.stage2.synthesis import shared_changes, step_change, step_picture
+
+    text = """0 three plates
+1 71 0 -8 0 1 0 0 0 1 0 0 0 1 3020.dat
+0 STEP
+1 4 20 -16 10 1 0 0 0 1 0 0 0 1 3023.dat
+0 STEP
+1 1 -20 -16 -10 1 0 0 0 1 0 0 0 1 3023.dat
+0 STEP
+"""
+    folder = manual_from_ldraw(text, tmp_path)
+    m = load_manual(folder)
+    answers = answers_of(m)
+    comps = answers.components(m)
+    computed = []
+    inner = synthesis._step_change
+
+    def counted(ctx: StepContext, picture: np.ndarray):
+        computed.append(ctx.step.where)
+        return inner(ctx, picture)
+
+    monkeypatch.setattr(synthesis, "_step_change", counted)
+    steps = m.main.steps
+    earlier = (EarlierStep(steps[0], 1),)
+    ctx = StepContext(
+        steps[1], answers.main.assembly_before(1, comps), comps, m.image_size, earlier
+    )
+    picture = step_picture(ctx)
+    with shared_changes():
+        first, tone = step_change(ctx, picture)
+        first[:] = 0  # the caller's copy
+        again, _ = step_change(ctx, picture)
+        assert len(computed) == 1 and again.any()
+        other_base = StepContext(
+            steps[1], answers.main.assembly_before(2, comps), comps, m.image_size, earlier
+        )
+        assert not np.array_equal(step_change(other_base, picture)[0], again)
+        step_change(ctx, np.clip(picture * 0.5, 0, 1))  # another picture
+        step_change(dataclasses.replace(ctx, earlier=()), picture)  # no earlier picture
+        assert len(computed) == 4
+        assert np.array_equal(step_change(ctx, picture)[0], again)  # still kept
+        assert len(computed) == 4
+    step_change(ctx, picture)
+    step_change(ctx, picture)
+    assert len(computed) == 6  # outside a plan every call computes
+
+    computed.clear()
+    synth = make_predictor("synthesis")
+    kept = run_manual(m, synth, teacher_forced=True)
+    with_kept = len(computed)
+    computed.clear()
+    monkeypatch.setattr(synthesis, "CHANGE_KEPT", 0)
+    each = run_manual(m, synth, teacher_forced=True)
+    # predicted and checked: a map each, one a step when shared
+    assert len(computed) == 2 * with_kept and with_kept == len(steps)
+    assert [[(p.yaw, p.t) for p in s.predictions] for s in kept.builds[0].steps] == [
+        [(p.yaw, p.t) for p in s.predictions] for s in each.builds[0].steps
+    ]

@@ -46,6 +46,7 @@ from mepnet.ldraw.io import write as write_ldraw
 from mepnet.manual import Build, ComponentRef, Manual, Step, StepTruth
 from mepnet.stage2 import Prediction, Predictor, StepContext, predict_step
 from mepnet.stage2.base import EarlierStep
+from mepnet.stage2.synthesis import shared_changes
 
 PLAN_SCHEMA = "mepnet.plan"
 
@@ -814,15 +815,18 @@ def run_manual(
         components = manual.primitive_components()
     runs = []
     style = PageStyle()
-    for key, _ in manual.builds():
-        run = run_build(predictor, manual, key, components, teacher_forced, on_step, repair, style)
-        runs.append(run)
-        if key is not None and not teacher_forced:
-            placed = run.placed()
-            if placed:
-                components[ComponentRef(submodule=key)] = submodule_from_placed(
-                    run.name, [(components[r], y, t, c) for r, y, t, c in placed]
-                )
+    with shared_changes():  # a step's change map computed once for its prediction and check
+        for key, _ in manual.builds():
+            run = run_build(
+                predictor, manual, key, components, teacher_forced, on_step, repair, style
+            )
+            runs.append(run)
+            if key is not None and not teacher_forced:
+                placed = run.placed()
+                if placed:
+                    components[ComponentRef(submodule=key)] = submodule_from_placed(
+                        run.name, [(components[r], y, t, c) for r, y, t, c in placed]
+                    )
     return ManualRun(manual, predictor.name, teacher_forced, runs, components)
 
 

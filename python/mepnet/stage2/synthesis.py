@@ -22,11 +22,14 @@ leave every mask, so the next instance fits the rest.
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
 import dataclasses
 import functools
+import hashlib
 import time
-from collections import Counter
-from collections.abc import Callable, Sequence
+from collections import Counter, OrderedDict
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
@@ -235,7 +238,85 @@ SHADOW_PATCH = 1
 PART_LIGHT = (0.3, 1.2)
 
 
+#: Change maps kept within :func:`shared_changes` (:func:`step_change`), the oldest first out.
+CHANGE_KEPT = 4
+_changes: contextvars.ContextVar[OrderedDict[tuple[Any, ...], tuple[np.ndarray, Tone]] | None] = (
+    contextvars.ContextVar("mepnet_changes", default=None)
+)
+
+
+@contextlib.contextmanager
+def shared_changes() -> Iterator[None]:
+    """Within it, :func:`step_change` keeps its latest :data:`CHANGE_KEPT` maps, by everything
+    they are computed from (:func:`_change_key`): a plan checks each step
+    (:func:`mepnet.consistency.check_step`) on the picture, camera, base and earlier pictures its
+    predictor's detections used, and the map is a fifth of a step's time. (Outside, every call
+    computes its map: the module's settings, which a caller may change between two calls, are
+    not part of the key.)"""
+    token = _changes.set(OrderedDict())
+    try:
+        yield
+    finally:
+        _changes.reset(token)
+
+
+def _camera_key(camera: dict[str, Any] | None) -> tuple[float, ...] | None:
+    """A step camera dict as a tuple of its numbers."""
+    if camera is None:
+        return None
+    return (
+        float(camera["elevation"]),
+        float(camera["azimuth"]),
+        float(camera["roll"]),
+        float(camera["scale"]),
+        *(float(v) for v in camera["translation"]),
+    )
+
+
+def _change_key(ctx: StepContext, picture: np.ndarray) -> tuple[Any, ...]:
+    """Everything :func:`step_change` reads, as a key: the picture's bytes (a digest), the
+    step's camera and callout colours, the base's instances with their colours, and the earlier
+    steps (their pictures by path, cameras and instance counts)."""
+    digest = hashlib.blake2b(np.ascontiguousarray(picture).tobytes(), digest_size=16).digest()
+    base = tuple(
+        (c.name, int(yaw), tuple(int(v) for v in t), ctx.base.colour(i))
+        for i, c, yaw, t in ctx.base.instances()
+    )
+    earlier = tuple(
+        (str(e.step.image_path), e.step.size, _camera_key(e.step.camera), e.instances)
+        for e in ctx.earlier
+    )
+    colours = tuple(sorted({c.colour for c in ctx.step.components}))
+    return (
+        digest,
+        picture.shape,
+        picture.dtype.str,
+        ctx.image_size,
+        _camera_key(ctx.step.camera),
+        colours,
+        base,
+        earlier,
+    )
+
+
 def step_change(ctx: StepContext, picture: np.ndarray) -> tuple[np.ndarray, Tone]:
+    """:func:`_step_change`; within :func:`shared_changes` the same map again for the same
+    picture, camera, base and earlier steps. The map returned is the caller's to change."""
+    kept = _changes.get()
+    if kept is None or CHANGE_KEPT <= 0:
+        return _step_change(ctx, picture)
+    key = _change_key(ctx, picture)
+    hit = kept.get(key)
+    if hit is None:
+        hit = kept[key] = _step_change(ctx, picture)
+        while len(kept) > CHANGE_KEPT:
+            kept.popitem(last=False)
+    else:
+        kept.move_to_end(key)
+    return hit[0].copy(), hit[1]
+
+
+def _step_change(ctx: StepContext, picture: np.ndarray) -> tuple[np.ndarray, Tone]:
     """The change map of a step (:func:`mepnet.state.change_map`, lines tolerated by
     :func:`tolerate_lines`): where its ``picture`` (H, W, 3 floats in [0, 1], the manual's
     image size) differs from the base shape rendered with the step's camera, and, where the
