@@ -314,6 +314,13 @@ def test_render_returns_a_frozen_rendering():
         r.ids[0, 0] = 5
     assert set(np.unique(r.ids)) == {-1, 0, 1}
     assert ((r.visible_fraction > 0) & (r.visible_fraction <= 1)).all()
+    assert r.rgb_unlined is None  # only when asked for
+    # the colours without outlines, from the same pass: the picture line_px 0 draws
+    both = _bg.render(asm, cam, 48, 32, supersample=3, unlined=True)
+    plain = _bg.render(asm, cam, 48, 32, supersample=3, line_px=0.0)
+    assert both.rgb_unlined is not None and not both.rgb_unlined.flags.writeable
+    assert np.array_equal(both.rgb, r.rgb) and np.array_equal(both.rgb_unlined, plain.rgb)
+    assert not np.array_equal(plain.rgb, r.rgb)
 
 
 def test_projection_of_known_points():

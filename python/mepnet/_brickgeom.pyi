@@ -131,6 +131,8 @@ class Rendering:
     @property
     def rgb(self) -> npt.NDArray[np.uint8]: ...
     @property
+    def rgb_unlined(self) -> npt.NDArray[np.uint8] | None: ...
+    @property
     def depth(self) -> npt.NDArray[np.float32]: ...
     @property
     def ids(self) -> npt.NDArray[np.int32]: ...
@@ -186,6 +188,7 @@ def render(
     style: RenderStyle | dict[str, Any] | None = None,
     new_ids: Sequence[int] | None = None,
     old_ids: Sequence[int] | None = None,
+    unlined: bool = False,
 ) -> Rendering: ...
 
 # LDraw files (re-exported by mepnet.ldraw)

@@ -177,6 +177,7 @@ fn colour_rgb(code: i32, ldraw_dir: Option<PathBuf>) -> PyResult<(u8, u8, u8)> {
 }
 
 /// The result of `render` (a frozen wrapper over the core's `Rendered`): `rgb` (H, W, 3) uint8,
+/// `rgb_unlined` the same without outlines (None unless `render(..., unlined=True)`),
 /// `depth` (H, W) float32 (inf on the background), `ids` (H, W) int32 instance ids (-1
 /// background), and per instance id (0 to the largest id drawn) `visible_fraction` float32,
 /// `visible_pixels` and `total_pixels` uint64 (supersampled counts). The arrays are made once, when the rendering is,
@@ -187,6 +188,7 @@ pub struct PyRendering {
     width: u32,
     height: u32,
     rgb: Py<PyArray3<u8>>,
+    rgb_unlined: Option<Py<PyArray3<u8>>>,
     depth: Py<PyArray2<f32>>,
     ids: Py<PyArray2<i32>>,
     visible_fraction: Py<PyArray1<f32>>,
@@ -206,9 +208,19 @@ impl PyRendering {
         let visible_fraction = Array1::from(r.visible_fraction());
         // The core returns `height * width` pixels (times 3 for rgb), so the shapes fit.
         let shape_error = |e: ndarray::ShapeError| PyValueError::new_err(e.to_string());
+        let rgb_unlined = if r.rgb_unlined.is_empty() {
+            None
+        } else {
+            Some(read_only(
+                Array3::from_shape_vec((h, w, 3), r.rgb_unlined)
+                    .map_err(shape_error)?
+                    .into_pyarray(py),
+            )?)
+        };
         Ok(PyRendering {
             width: r.width,
             height: r.height,
+            rgb_unlined,
             rgb: read_only(
                 Array3::from_shape_vec((h, w, 3), r.rgb)
                     .map_err(shape_error)?
@@ -244,6 +256,10 @@ impl PyRendering {
     #[getter]
     fn rgb<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray3<u8>> {
         self.rgb.bind(py).clone()
+    }
+    #[getter]
+    fn rgb_unlined<'py>(&self, py: Python<'py>) -> Option<Bound<'py, PyArray3<u8>>> {
+        self.rgb_unlined.as_ref().map(|a| a.bind(py).clone())
     }
     #[getter]
     fn depth<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f32>> {
@@ -301,9 +317,10 @@ fn marks_of(new_ids: &[u32], old_ids: &[u32]) -> PyResult<Vec<Mark>> {
 /// Render an assembly (see `Rendering` for what comes back). `style`: a `RenderStyle` (or its
 /// dict); the settings it fixes (line width, anti-aliasing) replace `line_px` and
 /// `supersample`. `new_ids` are drawn as added in this step (the style's highlight), `old_ids`
-/// as added before (the style's fade); ids and depth never depend on the style.
+/// as added before (the style's fade); ids and depth never depend on the style. `unlined`: the
+/// colours without outlines too (`Rendering.rgb_unlined`, from the same pass).
 #[pyfunction]
-#[pyo3(signature = (assembly, camera, width, height, supersample=1, line_px=None, ldraw_dir=None, style=None, new_ids=None, old_ids=None))]
+#[pyo3(signature = (assembly, camera, width, height, supersample=1, line_px=None, ldraw_dir=None, style=None, new_ids=None, old_ids=None, unlined=false))]
 #[allow(clippy::too_many_arguments)]
 fn render(
     py: Python<'_>,
@@ -317,9 +334,11 @@ fn render(
     style: Option<&Bound<'_, PyAny>>,
     new_ids: Option<Vec<u32>>,
     old_ids: Option<Vec<u32>>,
+    unlined: bool,
 ) -> PyResult<PyRendering> {
     let mut opts = RenderOptions::new(width, height);
     opts.supersample = supersample;
+    opts.unlined = unlined;
     if let Some(l) = line_px {
         opts.line_px = l;
     }

@@ -62,6 +62,9 @@ pub struct RenderOptions {
     pub crease_cos: f32,
     /// Lighting, shading, lines, palette and emphasis (default: the renderer's own look).
     pub style: RenderStyle,
+    /// Also the colours without outlines ([`Rendered::rgb_unlined`]: the picture `line_px` 0
+    /// draws), from the same pass.
+    pub unlined: bool,
 }
 
 impl RenderOptions {
@@ -76,6 +79,7 @@ impl RenderOptions {
             plane_edge: 1.0,
             crease_cos: 0.8,
             style: RenderStyle::default(),
+            unlined: false,
         }
     }
 
@@ -122,6 +126,9 @@ pub struct Rendered {
     pub height: u32,
     /// RGB, `height * width * 3`.
     pub rgb: Vec<u8>,
+    /// With [`RenderOptions::unlined`]: the RGB without outlines (as `line_px` 0 draws it);
+    /// else empty.
+    pub rgb_unlined: Vec<u8>,
     /// Depth along the view axis (LDU, larger = farther); `f32::INFINITY` on the background.
     pub depth: Vec<f32>,
     /// Id of the item seen at each pixel; -1 on the background.
@@ -470,7 +477,8 @@ fn render_passes(
     };
 
     // Shade samples, then box-filter to the output size.
-    let shade_sample = |i: usize| -> [f32; 3] {
+    // `lined`: outlines drawn (false: the colours `line_px` 0 gives, for `opts.unlined`)
+    let shade_sample = |i: usize, lined: bool| -> [f32; 3] {
         if let Some((hl, c)) = &highlight {
             if hl[i] {
                 return *c;
@@ -481,7 +489,7 @@ fn render_passes(
         }
         let k = item[i] as usize;
         let base = colours[k];
-        let c = if edge[i] {
+        let c = if lined && edge[i] {
             style.line_colour.on(base)
         } else {
             let (_, _, s, spec) = faces[face[i] as usize];
@@ -495,6 +503,9 @@ fn render_passes(
     };
     let (ow, oh) = (opts.width as usize, opts.height as usize);
     let mut rgb = vec![0u8; ow * oh * 3];
+    // the unlined colours: a row each when asked for, else a byte a row (zipped, not written)
+    let unlined_row = if opts.unlined { ow * 3 } else { 1 };
+    let mut rgb_unlined = vec![0u8; oh * unlined_row];
     let mut out_depth = vec![f32::INFINITY; ow * oh];
     let mut out_ids = vec![-1i32; ow * oh];
     let mut out_axes = vec![-1i8; ow * oh];
@@ -515,41 +526,62 @@ fn render_passes(
         .zip(out_depth.par_chunks_mut(ow))
         .zip(out_ids.par_chunks_mut(ow))
         .zip(out_axes.par_chunks_mut(ow))
+        .zip(rgb_unlined.par_chunks_mut(unlined_row))
         .enumerate()
-        .for_each(|(y, (((rgb_row, d_row), id_row), axis_row))| {
-            // output pixels whose samples all lie outside the drawn box are page
-            let xs = (y * ss..(y + 1) * ss)
-                .filter_map(|sy| near.cols(sy))
-                .reduce(|a, b| a.start.min(b.start)..a.end.max(b.end))
-                .map_or(0..0, |r| r.start / ss..r.end.div_ceil(ss));
-            let page = opts.background;
-            for x in (0..ow).filter(|x| !xs.contains(x)) {
-                rgb_row[x * 3..x * 3 + 3].copy_from_slice(&page);
-            }
-            for x in xs {
-                let mut acc = [0f32; 3];
-                for sy in 0..ss {
-                    for sx in 0..ss {
-                        let c = shade_sample((y * ss + sy) * w + x * ss + sx);
-                        for k in 0..3 {
-                            acc[k] += c[k];
-                        }
+        .for_each(
+            |(y, ((((rgb_row, d_row), id_row), axis_row), unlined_out))| {
+                // output pixels whose samples all lie outside the drawn box are page
+                let xs = (y * ss..(y + 1) * ss)
+                    .filter_map(|sy| near.cols(sy))
+                    .reduce(|a, b| a.start.min(b.start)..a.end.max(b.end))
+                    .map_or(0..0, |r| r.start / ss..r.end.div_ceil(ss));
+                let page = opts.background;
+                for x in (0..ow).filter(|x| !xs.contains(x)) {
+                    rgb_row[x * 3..x * 3 + 3].copy_from_slice(&page);
+                    if opts.unlined {
+                        unlined_out[x * 3..x * 3 + 3].copy_from_slice(&page);
                     }
                 }
-                let n = (ss * ss) as f32;
-                for k in 0..3 {
-                    rgb_row[x * 3 + k] = round_byte(acc[k] / n);
+                for x in xs {
+                    let mut acc = [0f32; 3];
+                    let mut plain = [0f32; 3];
+                    for sy in 0..ss {
+                        for sx in 0..ss {
+                            let i = (y * ss + sy) * w + x * ss + sx;
+                            let c = shade_sample(i, true);
+                            for k in 0..3 {
+                                acc[k] += c[k];
+                            }
+                            if opts.unlined {
+                                let c = if edge[i] { shade_sample(i, false) } else { c };
+                                for k in 0..3 {
+                                    plain[k] += c[k];
+                                }
+                            }
+                        }
+                    }
+                    let n = (ss * ss) as f32;
+                    for k in 0..3 {
+                        rgb_row[x * 3 + k] = round_byte(acc[k] / n);
+                        if opts.unlined {
+                            unlined_out[x * 3 + k] = round_byte(plain[k] / n);
+                        }
+                    }
+                    let centre = (y * ss + ss / 2) * w + x * ss + ss / 2;
+                    d_row[x] = depth[centre];
+                    id_row[x] = id_at(centre);
+                    axis_row[x] = axis_of(centre);
                 }
-                let centre = (y * ss + ss / 2) * w + x * ss + ss / 2;
-                d_row[x] = depth[centre];
-                id_row[x] = id_at(centre);
-                axis_row[x] = axis_of(centre);
-            }
-        });
+            },
+        );
+    if !opts.unlined {
+        rgb_unlined = Vec::new();
+    }
     Ok(Rendered {
         width: opts.width,
         height: opts.height,
         rgb,
+        rgb_unlined,
         depth: out_depth,
         ids: out_ids,
         axes: out_axes,
@@ -919,6 +951,48 @@ mod tests {
             }
         }
         assert_eq!(compared, 12, "three of four views per style draw something");
+    }
+
+    #[test]
+    fn unlined_colours_are_the_picture_without_lines_from_the_same_pass() {
+        let a = cuboid([-40.0, 0.0, -20.0], [40.0, 24.0, 20.0]);
+        let b = cuboid([0.0, 24.0, -20.0], [20.0, 48.0, 0.0]);
+        let items = [
+            RenderItem::new(&a, [200, 30, 30]),
+            RenderItem::new(&b, [30, 30, 200]).with_id(1),
+        ];
+        let marks = [Mark::Old, Mark::New];
+        let styled = RenderStyle {
+            front_lines: true,
+            highlight: Some([255, 200, 0]),
+            highlight_px: 3.0,
+            ..RenderStyle::default()
+        };
+        let mut lines_seen = 0;
+        for style in [RenderStyle::default(), styled] {
+            for (ss, line_px, scale) in [(1, 1.0, 0.01), (3, 2.0, 0.006), (1, 3.0, 0.02)] {
+                let cam = Camera::new(30.0, 225.0, 0.0, scale, [0.1, -0.1]).unwrap();
+                let mut opts = RenderOptions::new(96, 80);
+                opts.supersample = ss;
+                opts.line_px = line_px;
+                opts.style = style;
+                let lined = render_marked(&items, &cam, &opts, &marks).unwrap();
+                assert!(lined.rgb_unlined.is_empty(), "only when asked for");
+                opts.unlined = true;
+                let both = render_marked(&items, &cam, &opts, &marks).unwrap();
+                opts.unlined = false;
+                opts.line_px = 0.0;
+                let plain = render_marked(&items, &cam, &opts, &marks).unwrap();
+                assert_eq!(both.rgb, lined.rgb);
+                assert_eq!(both.ids, lined.ids);
+                assert_eq!(both.rgb_unlined, plain.rgb);
+                lines_seen += usize::from(lined.rgb != plain.rgb);
+            }
+        }
+        assert_eq!(
+            lines_seen, 6,
+            "every view draws lines the unlined colours leave out"
+        );
     }
 
     #[test]

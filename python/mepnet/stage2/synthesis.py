@@ -1575,11 +1575,13 @@ def _relocations(
     shape = ctx.base.copy()
     for i, yaw, tr in taken:
         shape.add(types[i].component, yaw, tr, ctx.colour(types[i].entry))
-    r = _bg.render(shape, ctx.camera, w, h)
+    r = _bg.render(shape, ctx.camera, w, h, unlined=picture_edges is not None)
     ids = r.ids
     unexplained = mask & (ids < n0)
     if picture_edges is not None:
-        box, _, undrawn = _edge_maps(ctx, shape, r.rgb, ids >= n0, mask, picture_edges)
+        box, _, undrawn = _edge_maps(
+            ctx, shape, r.rgb, ids >= n0, mask, picture_edges, r.rgb_unlined
+        )
         unexplained[box] |= undrawn
     if int(unexplained.sum()) < RELOCATE_PX:
         return []
@@ -1695,14 +1697,16 @@ def _edge_disagreement(
     new: np.ndarray,
     mask: np.ndarray,
     picture_edges: np.ndarray,
+    unlined: np.ndarray | None = None,
 ) -> tuple[int, int]:
     """The edges ``shape`` (the base and the step's parts, drawn ``new``) shows without
     outlines where the picture (its :func:`edge_map` ``picture_edges``) has none within a
     pixel, and the picture's edges it draws neither so nor with outlines (``lined``: its
     (H, W, 3) uint8 render) within a pixel, counted within 2 pixels of the parts and where the
     picture changed (``mask``): a renderer shows every face's outline as a change of colour,
-    and may or may not draw lines. Returns the two counts (shown, not drawn)."""
-    _, unseen, undrawn = _edge_maps(ctx, shape, lined, new, mask, picture_edges)
+    and may or may not draw lines. ``unlined``: ``shape`` drawn without outlines (None: drawn
+    here). Returns the two counts (shown, not drawn)."""
+    _, unseen, undrawn = _edge_maps(ctx, shape, lined, new, mask, picture_edges, unlined)
     return int(unseen.sum()), int(undrawn.sum())
 
 
@@ -1713,9 +1717,11 @@ def _edge_maps(
     new: np.ndarray,
     mask: np.ndarray,
     picture_edges: np.ndarray,
+    unlined: np.ndarray | None = None,
 ) -> tuple[tuple[slice, slice], np.ndarray, np.ndarray]:
     """:func:`_edge_disagreement`'s pixels: the box it looks in, and within it the edges shown
-    where the picture has none and the picture's edges drawn in neither drawing."""
+    where the picture has none and the picture's edges drawn in neither drawing. ``unlined``:
+    ``shape`` drawn without outlines ((H, W, 3) uint8; None: drawn here)."""
     w, h = ctx.image_size
     near = new | mask
     rows, cols = np.nonzero(near.any(axis=1))[0], np.nonzero(near.any(axis=0))[0]
@@ -1723,7 +1729,9 @@ def _edge_maps(
         slice(max(int(rows[0]) - 4, 0), min(int(rows[-1]) + 5, h)),
         slice(max(int(cols[0]) - 4, 0), min(int(cols[-1]) + 5, w)),
     )
-    rgb = _bg.render(shape, ctx.camera, w, h, line_px=0.0).rgb[box] / 255.0
+    if unlined is None:
+        unlined = _bg.render(shape, ctx.camera, w, h, line_px=0.0).rgb
+    rgb = unlined[box] / 255.0
     near = _max_filter(new[box], 2) | mask[box]
     drawn = edge_map(rgb) & near
     seen = picture_edges[box] & near
@@ -1802,7 +1810,8 @@ def _explained(
     w, h = ctx.image_size
     n0 = len(ctx.base)
     asm = _with_parts(ctx, preds)
-    r = _bg.render(asm, ctx.camera, w, h)
+    weigh_edges = picture_edges is not None and EDGE_WEIGHT != 0
+    r = _bg.render(asm, ctx.camera, w, h, unlined=weigh_edges)
     new = r.ids >= n0
     union = int((new | mask).sum())
     off = None  # per pixel the parts draw: the largest channel difference from the picture
@@ -1822,8 +1831,10 @@ def _explained(
     score = float((new & mask).sum() / union) if union else 0.0
     if off is not None:
         score -= COLOUR_WEIGHT * float(off.mean())
-    if picture_edges is not None and union and EDGE_WEIGHT:
-        unseen, undrawn = _edge_disagreement(ctx, asm, r.rgb, new, mask, picture_edges)
+    if picture_edges is not None and weigh_edges and union:
+        unseen, undrawn = _edge_disagreement(
+            ctx, asm, r.rgb, new, mask, picture_edges, r.rgb_unlined
+        )
         score -= (EDGE_WEIGHT * undrawn + SHOWN_EDGE_WEIGHT * unseen) / union
     cost = 0.5 * sum(1 for p in preds if not p.placed)
     if HIDDEN_COST:
