@@ -1599,3 +1599,50 @@ def test_a_plan_computes_each_steps_change_map_once_and_only_for_the_same_inputs
     assert [[(p.yaw, p.t) for p in s.predictions] for s in kept.builds[0].steps] == [
         [(p.yaw, p.t) for p in s.predictions] for s in each.builds[0].steps
     ]
+
+
+def test_a_part_moved_along_the_view_ray_is_turned_there_too(monkeypatch: pytest.MonkeyPatch):
+    """Our pictures (tests/data/stack, F20s manual 16's first 10 steps): step 10 adds three
+    1x2 plates stacked. The greedy puts two in the stack and the third low behind the model;
+    moved along the view ray (``RAY_SHIFTS``) it lands on the stack, across it over one stud
+    (0.97). Turned there about the corner of its box on that stud (``RAY_TURNS``), it is the
+    truth (1.0)."""
+    import mepnet.stage2.synthesis as synthesis
+
+    folder = Path(__file__).parent / "data" / "stack"
+    assert _main_step(folder, 10) == (3, 3)
+    monkeypatch.setattr(synthesis, "RAY_TURNS", False)
+    assert _main_step(folder, 10) == (2, 3)
+
+
+def test_a_part_turned_about_a_corner_keeps_that_corner_of_its_box():
+    """``_turns(..., corners=True)``: each other yaw about each corner of the box the part
+    fills, that corner kept (a 1x2 plate pivoted on either end stud), each placement once."""
+    import itertools
+
+    from mepnet import _brickgeom as _bg
+    from mepnet.geom import placement_box
+    from mepnet.stage2.synthesis import _turns
+
+    plate = _bg.Component.primitive("3023")
+    lo, hi = placement_box(plate, 0, (0, 3, 0))
+    plain = _turns(plate, 0, (0, 3, 0), True)
+    turned = _turns(plate, 0, (0, 3, 0), True, True)
+    assert set(plain) < set(turned)
+    pivots = []
+    for y, t in turned:
+        assert not plate.same_placement(0, (0, 3, 0), y, t)
+        lo2, hi2 = placement_box(plate, y, t)
+        assert lo2[1] == lo[1] and hi2[1] == hi[1]  # as high
+        corner = [
+            (x, z)
+            for x in ((lo[0], lo2[0]), (hi[0], hi2[0]))
+            for z in ((lo[2], lo2[2]), (hi[2], hi2[2]))
+            if x[0] == x[1] and z[0] == z[1]
+        ]
+        pivots += [corner] if (y, t) not in plain else []
+    # across the plate's length, about each of its four corners: four placements, each
+    # keeping one corner
+    assert len(pivots) == 4 and all(len(c) == 1 for c in pivots)
+    for a, b in itertools.combinations(turned, 2):
+        assert not plate.same_placement(*a, *b)

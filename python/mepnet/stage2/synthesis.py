@@ -1179,14 +1179,23 @@ def _solve(
         if score >= CLOSE or _clock() >= deadline:
             break
         i, yaw, tr = taken[level]
+        others = [*taken[:level], *taken[level + 1 :]]
         for d in rays:
-            moved = (i, yaw, (tr[0] + d[0], tr[1] + d[1], tr[2] + d[2]))
+            there = (tr[0] + d[0], tr[1] + d[1], tr[2] + d[2])
             # last: moved up, it may stand on a part placed after it
-            alt_preds, alt_taken, _, alt_score = attempt(
-                [*taken[:level], *taken[level + 1 :], moved]
-            )
+            alt_preds, alt_taken, _, alt_score = attempt([*others, (i, yaw, there)])
             if alt_score > score + 1e-6:
                 preds, score, taken = alt_preds, alt_score, alt_taken
+                # ... and there turned about itself (:data:`RAY_TURNS`): at its new place it
+                # shows other faces
+                for y, t2 in (
+                    _turns(types[i].component, yaw, there, True, True) if RAY_TURNS else ()
+                ):
+                    if _clock() >= deadline:
+                        break
+                    alt_preds, alt_taken, _, alt_score = attempt([*others, (i, y, t2)])
+                    if alt_score > score + 1e-6:
+                        preds, score, taken = alt_preds, alt_score, alt_taken
     # the step's parts turned together about the middle of the box they fill, where turned
     # they fill the same box (two 1x2 bricks side by side make a 2x2 column either way round:
     # only the seam between them tells)
@@ -1232,12 +1241,18 @@ def _solve(
 
 
 def _turns(
-    comp: _bg.Component, yaw: int, t: tuple[int, int, int], in_place: bool = False
+    comp: _bg.Component,
+    yaw: int,
+    t: tuple[int, int, int],
+    in_place: bool = False,
+    corners: bool = False,
 ) -> list[tuple[int, tuple[int, int, int]]]:
     """The other placements of ``comp`` filling the same box as at ``(yaw, t)``: each other
     yaw, moved so that its box is the same, unless it is the same placement (symmetry);
     ``in_place`` (:data:`TURNS_IN_PLACE`): then each other yaw about ``t`` itself too (a slope
-    in a row turned to face the way of its neighbours, its box moved)."""
+    in a row turned to face the way of its neighbours, its box moved); ``corners``: and each
+    other yaw about each corner of the box, that corner kept (a plate pivoted on its end
+    stud)."""
 
     lo, hi = placement_box(comp, yaw, t)
     out: list[tuple[int, tuple[int, int, int]]] = []
@@ -1259,6 +1274,15 @@ def _turns(
     for y in range(4) if in_place and TURNS_IN_PLACE else ():
         if y != yaw:
             add(y, t)
+    for y in range(4) if corners else ():
+        if y == yaw:
+            continue
+        lo2, hi2 = placement_box(comp, y, t)
+        for x_end in (0, 1):
+            for z_end in (0, 1):  # the corner of the box kept: low or high end along x, z
+                dx = (lo, hi)[x_end][0] - (lo2, hi2)[x_end][0]
+                dz = (lo, hi)[z_end][2] - (lo2, hi2)[z_end][2]
+                add(y, (t[0] + dx, t[1] + lo[1] - lo2[1], t[2] + dz))
     return out
 
 
@@ -1417,6 +1441,12 @@ TURNS = True
 RAY_SHIFTS = True
 #: A move drawn within this share of a stud's width on the picture lies along the view ray.
 RAY_PX = 0.35
+#: Whether a part a move along the view ray placed better is also turned there (:func:`_turns`,
+#: in its box, about its own position and about each corner of its box: F20s manual 16 step
+#: 10, three 1x2 plates stacked; the top one, placed low behind the model, moved up onto the
+#: two, lay across them over one stud: the truth, pivoted on that stud, explains the picture
+#: exactly, the placement 0.97).
+RAY_TURNS = True
 #: The farthest move looked at (lattice units: half-studs across, plates up or down), and how
 #: many of the moves drawn shortest are tried.
 RAY_REACH = (6, 12)
