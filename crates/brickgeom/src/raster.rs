@@ -909,14 +909,26 @@ mod tests {
         }
     }
 
+    /// A box and a smaller one standing on it.
+    fn two_boxes() -> [Mesh; 2] {
+        [
+            cuboid([-40.0, 0.0, -20.0], [40.0, 24.0, 20.0]),
+            cuboid([0.0, 24.0, -20.0], [20.0, 48.0, 0.0]),
+        ]
+    }
+
+    /// [`two_boxes`] as render items: red id 0, blue id 1.
+    fn two_items(boxes: &[Mesh; 2]) -> [RenderItem<'_>; 2] {
+        [
+            RenderItem::new(&boxes[0], [200, 30, 30]),
+            RenderItem::new(&boxes[1], [30, 30, 200]).with_id(1),
+        ]
+    }
+
     #[test]
     fn passes_limited_to_the_drawn_box_draw_the_same_picture() {
-        let a = cuboid([-40.0, 0.0, -20.0], [40.0, 24.0, 20.0]);
-        let b = cuboid([0.0, 24.0, -20.0], [20.0, 48.0, 0.0]);
-        let items = [
-            RenderItem::new(&a, [200, 30, 30]),
-            RenderItem::new(&b, [30, 30, 200]).with_id(1),
-        ];
+        let boxes = two_boxes();
+        let items = two_items(&boxes);
         let marks = [Mark::Old, Mark::New];
         let mut styles = vec![RenderStyle::default()];
         for lines in [LineMode::Parts, LineMode::Silhouette, LineMode::None] {
@@ -955,12 +967,8 @@ mod tests {
 
     #[test]
     fn unlined_colours_are_the_picture_without_lines_from_the_same_pass() {
-        let a = cuboid([-40.0, 0.0, -20.0], [40.0, 24.0, 20.0]);
-        let b = cuboid([0.0, 24.0, -20.0], [20.0, 48.0, 0.0]);
-        let items = [
-            RenderItem::new(&a, [200, 30, 30]),
-            RenderItem::new(&b, [30, 30, 200]).with_id(1),
-        ];
+        let boxes = two_boxes();
+        let items = two_items(&boxes);
         let marks = [Mark::Old, Mark::New];
         let styled = RenderStyle {
             front_lines: true,
