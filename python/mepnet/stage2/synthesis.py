@@ -1609,9 +1609,7 @@ def _relocations(
     ids = r.ids
     unexplained = mask & (ids < n0)
     if picture_edges is not None:
-        box, _, undrawn = _edge_maps(
-            ctx, shape, r.rgb, ids >= n0, mask, picture_edges, r.rgb_unlined
-        )
+        box, _, undrawn = _edge_maps(r, ids >= n0, mask, picture_edges)
         unexplained[box] |= undrawn
     if int(unexplained.sum()) < RELOCATE_PX:
         return []
@@ -1721,52 +1719,37 @@ def edge_map(rgb: np.ndarray) -> np.ndarray:
 
 
 def _edge_disagreement(
-    ctx: StepContext,
-    shape: _bg.Assembly,
-    lined: np.ndarray,
-    new: np.ndarray,
-    mask: np.ndarray,
-    picture_edges: np.ndarray,
-    unlined: np.ndarray | None = None,
+    drawn: _bg.Rendering, new: np.ndarray, mask: np.ndarray, picture_edges: np.ndarray
 ) -> tuple[int, int]:
-    """The edges ``shape`` (the base and the step's parts, drawn ``new``) shows without
-    outlines where the picture (its :func:`edge_map` ``picture_edges``) has none within a
-    pixel, and the picture's edges it draws neither so nor with outlines (``lined``: its
-    (H, W, 3) uint8 render) within a pixel, counted within 2 pixels of the parts and where the
-    picture changed (``mask``): a renderer shows every face's outline as a change of colour,
-    and may or may not draw lines. ``unlined``: ``shape`` drawn without outlines (None: drawn
-    here). Returns the two counts (shown, not drawn)."""
-    _, unseen, undrawn = _edge_maps(ctx, shape, lined, new, mask, picture_edges, unlined)
+    """The edges a shape (the base and the step's parts, drawn ``new``; ``drawn``: its render
+    with ``unlined=True``) shows without outlines where the picture (its :func:`edge_map`
+    ``picture_edges``) has none within a pixel, and the picture's edges it draws neither so nor
+    with outlines within a pixel, counted within 2 pixels of the parts and where the picture
+    changed (``mask``): a renderer shows every face's outline as a change of colour, and may or
+    may not draw lines. Returns the two counts (shown, not drawn)."""
+    _, unseen, undrawn = _edge_maps(drawn, new, mask, picture_edges)
     return int(unseen.sum()), int(undrawn.sum())
 
 
 def _edge_maps(
-    ctx: StepContext,
-    shape: _bg.Assembly,
-    lined: np.ndarray,
-    new: np.ndarray,
-    mask: np.ndarray,
-    picture_edges: np.ndarray,
-    unlined: np.ndarray | None = None,
+    drawn: _bg.Rendering, new: np.ndarray, mask: np.ndarray, picture_edges: np.ndarray
 ) -> tuple[tuple[slice, slice], np.ndarray, np.ndarray]:
     """:func:`_edge_disagreement`'s pixels: the box it looks in, and within it the edges shown
-    where the picture has none and the picture's edges drawn in neither drawing. ``unlined``:
-    ``shape`` drawn without outlines ((H, W, 3) uint8; None: drawn here)."""
-    w, h = ctx.image_size
+    where the picture has none and the picture's edges drawn in neither drawing."""
+    lined, unlined = drawn.rgb, drawn.rgb_unlined
+    assert unlined is not None, "the shape is drawn with unlined=True"
+    h, w = new.shape
     near = new | mask
     rows, cols = np.nonzero(near.any(axis=1))[0], np.nonzero(near.any(axis=0))[0]
     box = (
         slice(max(int(rows[0]) - 4, 0), min(int(rows[-1]) + 5, h)),
         slice(max(int(cols[0]) - 4, 0), min(int(cols[-1]) + 5, w)),
     )
-    if unlined is None:
-        unlined = _bg.render(shape, ctx.camera, w, h, line_px=0.0).rgb
-    rgb = unlined[box] / 255.0
     near = _max_filter(new[box], 2) | mask[box]
-    drawn = edge_map(rgb) & near
+    plain = edge_map(unlined[box] / 255.0) & near
     seen = picture_edges[box] & near
-    unseen = drawn & ~_max_filter(seen, 1)  # shown, the picture shows none
-    undrawn = seen & ~_max_filter(drawn | edge_map(lined[box] / 255.0), 1)  # in neither drawing
+    unseen = plain & ~_max_filter(seen, 1)  # shown, the picture shows none
+    undrawn = seen & ~_max_filter(plain | edge_map(lined[box] / 255.0), 1)  # in neither drawing
     return box, unseen, undrawn
 
 
@@ -1862,9 +1845,7 @@ def _explained(
     if off is not None:
         score -= COLOUR_WEIGHT * float(off.mean())
     if picture_edges is not None and weigh_edges and union:
-        unseen, undrawn = _edge_disagreement(
-            ctx, asm, r.rgb, new, mask, picture_edges, r.rgb_unlined
-        )
+        unseen, undrawn = _edge_disagreement(r, new, mask, picture_edges)
         score -= (EDGE_WEIGHT * undrawn + SHOWN_EDGE_WEIGHT * unseen) / union
     cost = 0.5 * sum(1 for p in preds if not p.placed)
     if HIDDEN_COST:
