@@ -1526,6 +1526,32 @@ def test_two_touching_parts_of_a_row_are_turned_together(monkeypatch: pytest.Mon
     assert _main_step(folder, 13) == (4, 6)
 
 
+def test_a_steps_solves_score_each_solution_once(monkeypatch: pytest.MonkeyPatch):
+    """Our pictures (tests/data/row, step 13: six parts, revisited): the greedy's revisits
+    reach one solution by many orders; each distinct solution is scored (rendered and compared
+    with the picture) once across the step's solves, and the step is still right."""
+    import mepnet.stage2.synthesis as synthesis
+
+    scored: list[tuple] = []
+    keys: list[tuple] = []
+    explained, key_of = synthesis._explained, synthesis._solution_key
+
+    def counted(ctx, preds, *args):
+        scored.append(key_of(preds))
+        return explained(ctx, preds, *args)
+
+    def keyed(preds):
+        keys.append(key_of(preds))
+        return keys[-1]
+
+    monkeypatch.setattr(synthesis, "_explained", counted)
+    monkeypatch.setattr(synthesis, "_solution_key", keyed)
+    folder = Path(__file__).parent / "data" / "row"
+    assert _main_step(folder, 13) == (6, 6)
+    assert len(scored) == len(set(scored)) == len(set(keys))
+    assert len(keys) > len(scored)  # some solution was reached again
+
+
 def test_a_plan_computes_each_steps_change_map_once_and_only_for_the_same_inputs(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ):

@@ -616,8 +616,23 @@ def synthesize(
     behind = (
         _base_colours(ctx) if picture is not None and QUIET_BEHIND and QUIET_LEVEL > 0 else None
     )
+    # what the solves below share: each complete solution's score, each candidate drawn alone
+    scores: dict[tuple[Any, ...], float] = {}
+    drawn: dict[First, _Drawn] = {}
     preds, score, tried = _solve(
-        ctx, types, time_limit_s, picture, tone, first, mask, edges, deadline, RANKED, behind
+        ctx,
+        types,
+        time_limit_s,
+        picture,
+        tone,
+        first,
+        mask,
+        edges,
+        deadline,
+        RANKED,
+        behind,
+        scores,
+        drawn,
     )
     searched_wide = first
     if (
@@ -626,7 +641,19 @@ def synthesize(
         and _clock() < deadline
     ):
         wide, wide_score, wide_tried = _solve(
-            ctx, types, time_limit_s, picture, tone, True, mask, edges, deadline, RANKED, behind
+            ctx,
+            types,
+            time_limit_s,
+            picture,
+            tone,
+            True,
+            mask,
+            edges,
+            deadline,
+            RANKED,
+            behind,
+            scores,
+            drawn,
         )
         if _wide_wins(ctx, preds, score, wide, wide_score):
             preds, score, tried, searched_wide = wide, wide_score, wide_tried, True
@@ -643,6 +670,8 @@ def synthesize(
                 deadline,
                 DEEP_RANKED,
                 behind,
+                scores,
+                drawn,
             )
             tried += deep_tried
             if _wide_wins(ctx, preds, score, deep, deep_score):
@@ -661,11 +690,14 @@ def synthesize(
                 if x != g and q.placed
             ]
             moved, _, _ = _greedy(
-                ctx, types, time_limit_s, picture, tone, prefix, True, None, deadline
+                ctx, types, time_limit_s, picture, tone, prefix, True, None, deadline, drawn
             )
             if len(moved) < len(preds) or not all(q.placed for q in moved):
                 continue
-            moved_score = _explained(ctx, moved, mask, picture, tone, edges, behind)
+            key = _solution_key(moved)
+            if key not in scores:
+                scores[key] = _explained(ctx, moved, mask, picture, tone, edges, behind)
+            moved_score = scores[key]
             tried.append((moved_score, moved))
             if _wide_wins(ctx, preds, score, moved, moved_score):
                 preds, score = moved, moved_score
@@ -963,16 +995,21 @@ def _solve(
     deadline: float = float("inf"),
     ranked: int = RANKED,
     base_colours: np.ndarray | None = None,
+    scores: dict[tuple[Any, ...], float] | None = None,
+    drawn: dict[First, _Drawn] | None = None,
 ) -> tuple[list[Prediction], float, list[tuple[float, list[Prediction]]]]:
     """:func:`synthesize`'s greedy with its revisits, the ground searched beside the base or
     (``wide``) wherever the picture changed, no revisit begun after ``deadline``
     (:func:`_clock`); ``mask``, ``picture_edges``: what :func:`_explained` weighs (the types'
     masks together, the picture's :func:`edge_map`); ``ranked``: the placements each of the
-    greedy's rounds scores; ``base_colours``: :func:`_explained`'s. Returns the predictions, how
+    greedy's rounds scores; ``base_colours``: :func:`_explained`'s. ``scores``: each complete
+    solution's score by :func:`_solution_key`, and ``drawn``: each candidate drawn alone, shared
+    by the solves of one step (the same mask, picture and camera). Returns the predictions, how
     well they explain the picture, and every complete solution tried with its score."""
     w, h = ctx.image_size
     memo: dict[frozenset[First], tuple[Any, list[tuple[float, First]]]] = {}
-    drawn: dict[First, _Drawn] = {}
+    drawn = {} if drawn is None else drawn
+    scores = {} if scores is None else scores
 
     total = sum(t.count for t in types)
 
@@ -989,7 +1026,10 @@ def _solve(
         )
         if len(p) < total:
             return p, t, o, float("-inf")
-        score = _explained(ctx, p, mask, picture, tone, picture_edges, base_colours)
+        key = _solution_key(p)
+        if key not in scores:
+            scores[key] = _explained(ctx, p, mask, picture, tone, picture_edges, base_colours)
+        score = scores[key]
         tried.append((score, p))
         return p, t, o, score
 
@@ -1803,6 +1843,17 @@ def _base_colours(ctx: StepContext) -> np.ndarray:
 #: parts) costs this share of :func:`_explained`'s score, as a part not placed does: a manual
 #: shows what each step adds, so a placement the picture cannot show is no explanation of it.
 HIDDEN_COST = 0.5
+
+
+def _solution_key(preds: list[Prediction]) -> tuple[Any, ...]:
+    """What :func:`_explained` scores of a step's solution: its placements by callout entry,
+    in any order (the greedy's revisits reach one solution by many orders)."""
+    return tuple(
+        sorted(
+            (p.entry, -1 if p.yaw is None else int(p.yaw), () if p.t is None else tuple(p.t))
+            for p in preds
+        )
+    )
 
 
 def _explained(
