@@ -619,60 +619,38 @@ def synthesize(
     # what the solves below share: each complete solution's score, each candidate drawn alone
     scores: dict[tuple[Any, ...], float] = {}
     drawn: dict[First, _Drawn] = {}
-    preds, score, tried = _solve(
-        ctx,
-        types,
-        time_limit_s,
-        picture,
-        tone,
-        first,
-        mask,
-        edges,
-        deadline,
-        RANKED,
-        behind,
-        scores,
-        drawn,
-    )
+
+    def solve(wide: bool, ranked: int) -> tuple[list[Prediction], float, Any]:
+        """:func:`_solve` on this step, the ground searched wherever the picture changed when
+        ``wide``, ``ranked`` placements scored a round."""
+        return _solve(
+            ctx,
+            types,
+            time_limit_s,
+            picture,
+            tone,
+            wide,
+            mask,
+            edges,
+            deadline,
+            ranked,
+            behind,
+            scores,
+            drawn,
+        )
+
+    preds, score, tried = solve(first, RANKED)
     searched_wide = first
     if (
         not first
         and (score < WIDE_BELOW or _changed_apart(ctx, preds, mask))
         and _clock() < deadline
     ):
-        wide, wide_score, wide_tried = _solve(
-            ctx,
-            types,
-            time_limit_s,
-            picture,
-            tone,
-            True,
-            mask,
-            edges,
-            deadline,
-            RANKED,
-            behind,
-            scores,
-            drawn,
-        )
+        wide, wide_score, wide_tried = solve(True, RANKED)
         if _wide_wins(ctx, preds, score, wide, wide_score):
             preds, score, tried, searched_wide = wide, wide_score, wide_tried, True
         if score < DEEP_BELOW and _clock() < deadline:
-            deep, deep_score, deep_tried = _solve(
-                ctx,
-                types,
-                time_limit_s,
-                picture,
-                tone,
-                searched_wide,
-                mask,
-                edges,
-                deadline,
-                DEEP_RANKED,
-                behind,
-                scores,
-                drawn,
-            )
+            deep, deep_score, deep_tried = solve(searched_wide, DEEP_RANKED)
             tried += deep_tried
             if _wide_wins(ctx, preds, score, deep, deep_score):
                 preds, score = deep, deep_score
