@@ -1202,14 +1202,7 @@ def _solve(
             there = (tr[0] + d[0], tr[1] + d[1], tr[2] + d[2])
             # last: moved up, it may stand on a part placed after it
             alt_preds, alt_taken, _, alt_score = attempt([*others, (i, yaw, there)])
-            # on the terms of the ground searched wide (:data:`RAY_APART`): a part moved back
-            # along the ray onto the ground apart from the model draws the same pixels, and
-            # another renderer's picture may favour it by a little
-            if (
-                _wide_wins(ctx, preds, score, alt_preds, alt_score)
-                if RAY_APART
-                else alt_score > score + 1e-6
-            ):
+            if alt_score > score + 1e-6:
                 preds, score, taken = alt_preds, alt_score, alt_taken
                 # ... and there turned about itself (:data:`RAY_TURNS`): at its new place it
                 # shows other faces
@@ -1464,14 +1457,6 @@ TURNS = True
 #: ray (:func:`_ray_shifts`) (:func:`_solve`): a part drawn at the same pixels nearer or farther
 #: (the upper of two equal parts stacked, put low down behind the model instead).
 RAY_SHIFTS = True
-#: Whether a move along the view ray is kept on the terms the ground searched wide is
-#: (:func:`_wide_wins`): by any margin unless it stands a part on the ground apart from the base,
-#: then by :data:`WIDE_MARGIN` and only if that part shows itself. (LeoCAD's LF20t manual 1 step
-#: 4: a 1x2 grille brick hung under a plate, moved back along the ray onto the ground beside
-#: nothing, 0.52 against the truth's 0.45: LeoCAD draws the grille's grooves, ours does not, and
-#: far back its top hides behind the plate's edge. On its own predictions the manual lost eight
-#: components after it.)
-RAY_APART = True
 #: A move drawn within this share of a stud's width on the picture lies along the view ray.
 RAY_PX = 0.35
 #: Whether a part a move along the view ray placed better is also turned there (:func:`_turns`,
