@@ -672,10 +672,7 @@ def synthesize(
             )
             if len(moved) < len(preds) or not all(q.placed for q in moved):
                 continue
-            key = _solution_key(moved)
-            if key not in scores:
-                scores[key] = _explained(ctx, moved, mask, picture, tone, edges, behind)
-            moved_score = scores[key]
+            moved_score = _scored(scores, ctx, moved, mask, picture, tone, edges, behind)
             tried.append((moved_score, moved))
             if _wide_wins(ctx, preds, score, moved, moved_score):
                 preds, score = moved, moved_score
@@ -1004,10 +1001,7 @@ def _solve(
         )
         if len(p) < total:
             return p, t, o, float("-inf")
-        key = _solution_key(p)
-        if key not in scores:
-            scores[key] = _explained(ctx, p, mask, picture, tone, picture_edges, base_colours)
-        score = scores[key]
+        score = _scored(scores, ctx, p, mask, picture, tone, picture_edges, base_colours)
         tried.append((score, p))
         return p, t, o, score
 
@@ -1832,6 +1826,20 @@ def _solution_key(preds: list[Prediction]) -> tuple[Any, ...]:
             for p in preds
         )
     )
+
+
+def _scored(
+    scores: dict[tuple[Any, ...], float],
+    ctx: StepContext,
+    preds: list[Prediction],
+    *explained: Any,
+) -> float:
+    """:func:`_explained` of ``preds`` (its further arguments ``explained``), from ``scores``
+    (by :func:`_solution_key`) when the solution was scored before, else scored and kept there."""
+    key = _solution_key(preds)
+    if key not in scores:
+        scores[key] = _explained(ctx, preds, *explained)
+    return scores[key]
 
 
 def _explained(
