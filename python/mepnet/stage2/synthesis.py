@@ -898,6 +898,8 @@ def _wide_wins(
     parts on the ground and none apart from the base; else by :data:`WIDE_MARGIN`, and each
     part it stands apart shows itself, :func:`_hidden_on_ground`, unless it wins by
     :data:`WIDE_CLEAR` times that margin)."""
+    if wide_score <= score + 1e-6:  # most calls (each move along the view ray): no box work
+        return False
     near = _grounded(wide) <= _grounded(preds) and not _apart(ctx, wide, preds)
     margin = 0.0 if near else WIDE_MARGIN
     if wide_score <= score + margin + 1e-6:
