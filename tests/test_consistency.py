@@ -18,7 +18,7 @@ from mepnet.consistency import (
     repair,
 )
 from mepnet.manual import answers_of, iter_manual_dirs, load_manual
-from mepnet.plan import plan_json, run_manual, step_matches
+from mepnet.plan import accuracy, plan_json, run_manual, step_matches
 from mepnet.stage2 import make_predictor
 from mepnet.stage2.base import EarlierStep, Prediction, StepContext
 
@@ -306,6 +306,42 @@ def test_a_tie_a_picture_from_a_new_side_tells_apart_is_settled_there(tmp_path: 
     assert [(r.step, r.found_at) for r in revised] == [(3, 11)]
     assert revised[0].disagreement[1] < revised[0].disagreement[0]
     assert step_matches(run, step3) == 1
+    assert step3.alternatives == []  # settled: nothing left to flag
+
+
+def test_a_part_no_picture_shows_is_flagged_with_its_alternatives(tmp_path: Path):
+    """Our pictures of F20v manual 19, main steps 1-7 (tests/data/unsettled): steps 4 and 7
+    each add a 1x1 brick with a side stud (87087) whose stud faces away in every picture, so
+    no picture tells its turns apart. The plan takes one and says so: the step is flagged, its
+    alternatives listed in plan.json, and the truth is the plan's or one of them; a step
+    whose picture shows everything (step 1, a plate) has none. mepnet.eval counts them."""
+    from mepnet.eval import alternatives_counts
+
+    man = load_manual(Path(__file__).parent / "data" / "unsettled")
+    run = run_manual(man, make_predictor("mepnet"))
+    steps = run.main.steps
+    assert steps[0].alternatives == []
+    doc = plan_json(run)
+    for k in (3, 6):
+        s = steps[k]
+        assert s.alternatives, k + 1
+        assert any("the manual does not show which" in f for f in s.check.flags)
+        rec = doc["steps"][k]["alternatives"]
+        assert len(rec) == len(s.alternatives)
+        for alt in rec:
+            for x in alt:
+                comp = doc["steps"][k]["components"][x["index"]]
+                assert comp["component"] == {"part": "87087"}
+                assert x["lattice"] == comp["lattice"] and x["yaw"] != comp["yaw"]
+    assert "alternatives" not in doc["steps"][0]
+    counts = dict(
+        zip(("steps", "wrong", "flagged", "offered"), alternatives_counts(run), strict=True)
+    )
+    # every wrong step is one whose truth the flag offers (the 87087s: a coin toss each)
+    assert counts["wrong"] == counts["flagged"] == counts["offered"]
+    assert counts["steps"] >= 2
+    right, total = accuracy(run)
+    assert total - right == counts["wrong"] > 0  # one component each, steps 4 and 7 here
 
 
 def test_a_step_whose_picture_moved_an_earlier_part_is_predicted_again(

@@ -79,6 +79,7 @@ from mepnet.plan import (
     predicted_placements,
     run_manual,
     same_shape,
+    step_matches,
     step_motion,
 )
 from mepnet.stage2 import LIFTS, PREDICTORS, Prediction, Predictor, make_predictor
@@ -374,6 +375,9 @@ def evaluate(
     undecidable_comps = 0
     ar_revisions = 0
     ar_repair_seconds: list[float] = []
+    # the plan's steps with alternatives no picture told apart, and its wrong steps: all, those
+    # flagged so, those one of whose alternatives is the truth (:func:`alternatives_counts`)
+    ar_alternatives = np.zeros(4, int)
     timeouts = 0
     over_budget = 0  # steps whose stage 2 ran out of its time budget
     regressed: list[np.ndarray] = []  # Direct3D: regressed minus true translation (cells)
@@ -487,6 +491,8 @@ def evaluate(
                 right, total = accuracy(ar)
                 ar_right += right
                 ar_total += total
+                counts = alternatives_counts(ar)
+                ar_alternatives += counts
                 exact = bool(built_exactly(ar))
                 manuals_exact += int(exact)
                 alike = bool(drawn_alike(man, ar))
@@ -496,6 +502,7 @@ def evaluate(
                     built_exactly=exact,
                     drawn_alike=alike,
                     revisions=sum(len(s.revisions) for b in ar.builds for s in b.steps),
+                    alternatives=dict(zip(ALTERNATIVES_KEYS, counts.tolist(), strict=True)),
                 )
                 motion = step_motion(ar, ar.main, ar.main.steps[0]) if ar.main.steps else None
                 placed = [
@@ -539,6 +546,9 @@ def evaluate(
         "manuals_drawn_alike": manuals_alike / len(manuals) if autoregressive else None,
         "repair": repair if autoregressive else None,
         "revisions": ar_revisions if autoregressive else None,
+        "alternatives": dict(zip(ALTERNATIVES_KEYS, ar_alternatives.tolist(), strict=True))
+        if autoregressive
+        else None,
         "repair_seconds_per_step": float(np.mean(ar_repair_seconds))
         if autoregressive and ar_repair_seconds
         else None,
@@ -678,6 +688,43 @@ def pictures_alike(
         if int(drawn_differ(ra, rb).sum()) > DRAWN_TOLERANCE_PX:
             return False
     return True
+
+
+#: The keys of ``alternatives`` in the JSON (:func:`alternatives_counts`).
+ALTERNATIVES_KEYS = ("steps", "wrong_steps", "wrong_flagged", "truth_offered")
+
+
+def alternatives_counts(run: Any) -> np.ndarray:
+    """Over every step of the plan ``run`` (autoregressive, with answers): the steps with
+    alternatives no picture told apart (``StepRun.alternatives``, flagged in plan.json); the
+    wrong steps (some true instance not placed exactly); of those, the ones flagged so; and
+    the ones one of whose alternatives, taken, places every true instance exactly."""
+    out = np.zeros(4, int)
+    for b in run.builds:
+        for s in b.steps:
+            out[0] += bool(s.alternatives)
+            if s.truth is None:
+                continue
+            total = len(s.truth.placed())
+            if step_matches(run, s) == total:
+                continue
+            out[1] += 1
+            out[2] += bool(s.alternatives)
+            preds, placed = s.predictions, s.placed
+            try:
+                for alt in s.alternatives:
+                    s.predictions, s.placed = list(preds), list(placed)
+                    for i, yaw, t in alt:
+                        s.predictions[i] = dataclasses.replace(preds[i], yaw=yaw, t=t)
+                        pl = placed[i]
+                        assert pl is not None
+                        s.placed[i] = (pl[0], yaw, t, pl[3])
+                    if step_matches(run, s) == total:
+                        out[3] += 1
+                        break
+            finally:
+                s.predictions, s.placed = preds, placed
+    return out
 
 
 def _drawn_shape(placements: Sequence[Any]) -> _bg.Assembly:
@@ -846,6 +893,12 @@ def format_table(rows: list[dict[str, Any]]) -> str:
                 )
             elif r.get("repair") is False:
                 lines.append(f"{'  repair':14s} off (--no-repair)")
+            if a := r.get("alternatives"):
+                lines.append(
+                    f"{'  unsettled':14s} {a['steps']} steps flagged with alternatives no picture "
+                    f"tells apart; of the {a['wrong_steps']} wrong steps {a['wrong_flagged']} "
+                    f"flagged, {a['truth_offered']} with the truth among the alternatives"
+                )
     for r in rows:
         if r.get("over_budget_steps"):
             lines.append(

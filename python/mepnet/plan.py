@@ -74,6 +74,10 @@ class StepRun:
     revisions: list[Revision] = field(default_factory=list)
     #: wall time of the repair after this step
     repair_seconds: float = 0.0
+    #: other solutions of the step that no picture told apart from the plan's (autoregressive,
+    #: at the end of the build; :func:`_unsettled`): per solution, the placements ``(prediction
+    #: index, yaw, t)`` where it differs from the plan
+    alternatives: list[list[tuple[int, int, tuple[int, int, int]]]] = field(default_factory=list)
 
 
 @dataclass
@@ -150,6 +154,8 @@ def run_build(
     # the latest steps whose pictures could not tell solutions apart: (step, the others)
     open_ties: list[tuple[int, list[list[tuple[int, int, tuple[int, int, int]]]]]] = []
     tie_views: dict[int, list[tuple[float, float, float]]] = {}  # the views each was judged by
+    # ties no longer judged (more than :data:`TIE_KEPT` steps back): never told apart
+    aged_ties: list[tuple[int, list[list[tuple[int, int, tuple[int, int, int]]]]]] = []
     w, h = manual.image_size
     for k, step in enumerate(build.steps):
         truth = full_truth = answers.truth(k) if answers is not None else None
@@ -267,6 +273,7 @@ def run_build(
             ties = next((p.extra["ties"] for p in preds if p.extra.get("ties")), None)
             if ties:
                 open_ties.append((k + 1, [[(kept[e], y, t) for e, y, t in alt] for alt in ties]))
+                aged_ties += open_ties[:-TIE_KEPT]
                 del open_ties[:-TIE_KEPT]
                 if camera.camera is not None:
                     tie_views[k + 1] = [_view(camera.camera)]
@@ -325,7 +332,41 @@ def run_build(
         earlier.append(EarlierStep(page_seen, len(base)))
         if on_step is not None:
             on_step()
+    if not teacher_forced:
+        _unsettled(run, aged_ties + open_ties, placements)
     return run
+
+
+def _unsettled(
+    run: BuildRun,
+    ties: list[tuple[int, list[list[tuple[int, int, tuple[int, int, int]]]]]],
+    placements: list[Placement],
+) -> None:
+    """Each step's ties that no picture told apart (``ties``: those still open at the end of
+    the build and those no longer judged), as the plan now allows them: the step's
+    :attr:`StepRun.alternatives` and a flag on its check. A part whose turn or place the
+    manual never shows (a side stud facing into the model) is a guess either way; the plan
+    says so rather than hand a robot one of them as certain."""
+    for j, alts in ties:
+        s = run.steps[j - 1]
+        mine = {(p.pred, p.yaw, p.t) for p in placements if p.step == j}
+        for alt in alts:
+            trial = _tie_placements(placements, s, alt)
+            if trial is None or build_placements(trial) is None:
+                continue  # the plan since does not allow it
+            differ = [
+                (p.pred, p.yaw, p.t)
+                for p in trial
+                if p.step == j and (p.pred, p.yaw, p.t) not in mine
+            ]
+            if differ and differ not in s.alternatives:
+                s.alternatives.append(differ)
+        if s.alternatives and s.check is not None:
+            n = len(s.alternatives)
+            s.check.flags.append(
+                f"{n} other solution{'s' if n > 1 else ''} explain{'' if n > 1 else 's'} the "
+                "pictures as well: the manual does not show which (plan.json: alternatives)"
+            )
 
 
 #: A step explained worse than this (its check's confidence) is predicted again on each
@@ -1010,6 +1051,12 @@ def built_exactly(run: ManualRun) -> bool | None:
     return same_shape(built, truth)
 
 
+def _ldu(yaw: int, t: tuple[int, int, int]) -> dict[str, Any]:
+    """A placement in LDraw's frame, as plan.json gives it."""
+    pos, mat = ldraw_placement(yaw, t)
+    return {"position": pos, "matrix": mat}
+
+
 def plan_json(run: ManualRun) -> dict[str, Any]:
     """The plan document (``plan.json``)."""
     manual = run.manual
@@ -1026,8 +1073,7 @@ def plan_json(run: ManualRun) -> dict[str, Any]:
                     "failure": p.failure,
                 }
                 if pl is not None:
-                    pos, mat = ldraw_placement(pl[1], pl[2])
-                    rec.update(yaw=pl[1], lattice=list(pl[2]), ldu={"position": pos, "matrix": mat})
+                    rec.update(yaw=pl[1], lattice=list(pl[2]), ldu=_ldu(pl[1], pl[2]))
                     err = p.extra.get("error_px")
                     rec["confidence"] = float(np.exp(-err / 2.0)) if err is not None else None
                 ok = correct(run, s, p, b)
@@ -1052,6 +1098,14 @@ def plan_json(run: ManualRun) -> dict[str, Any]:
                 for r in s.revisions
             ]
             rec_step["components"] = records
+            if s.alternatives:
+                rec_step["alternatives"] = [
+                    [
+                        {"index": x, "yaw": yaw, "lattice": list(t), "ldu": _ldu(yaw, t)}
+                        for x, yaw, t in alt
+                    ]
+                    for alt in s.alternatives
+                ]
             out.append(rec_step)
         return out
 
