@@ -207,6 +207,12 @@ def test_bad_steps_show_as_such_and_new_fields_need_no_report_change(example_run
         flags=["unexplained pixels"],
         revisions=[{"step": 1, "component": "3003", "from": [0, 3, 0], "to": [2, 3, 0]}],
         novel_field="shown anyway",
+        # other solutions no picture tells apart: the second component turned, and one
+        # alternative that is not well formed (shown as it is)
+        alternatives=[
+            [{"index": 1, "yaw": 3, "lattice": [7, 3, -2], "ldu": {}}],
+            [{"index": 99}],
+        ],
     )
     second["components"][0]["novel_component_field"] = 7
     page_text = report_html(plan, manual, components)
@@ -216,6 +222,10 @@ def test_bad_steps_show_as_such_and_new_fields_need_no_report_change(example_run
     assert "nothing placed yet" in a  # no shape to render: said, not drawn
     assert "unexplained pixels" in b and "0.42" in b and "shown anyway" in b
     assert "novel_component_field" in b and "from0, 3, 0to2, 3, 0" in b  # the revision, nested
+    # the alternatives by the component's row in the step's table (from 1)
+    name = page.section_text["main-step-2"]
+    assert "alternatives no picture tells apart" in name and "#2 " in name
+    assert "yaw 3 at (7, 3, -2)" in name and "index99" in name
     assert page.summary["flagged"] == f"1 of {len(page.sections)}"
     assert (
         page.summary["cameras"]

@@ -40,7 +40,7 @@ MAX_PICTURE_PX = 384
 #: Step fields the report always shows ("—" when the plan has none).
 STEP_FIELDS = ("confidence", "flags", "revisions")
 #: Step fields shown elsewhere on the page (the rest are listed generically).
-_STEP_SHOWN = {"index", "image", "seconds", "components", *STEP_FIELDS}
+_STEP_SHOWN = {"index", "image", "seconds", "components", "alternatives", *STEP_FIELDS}
 _CAMERA_KEYS = {"camera", "camera_source", "camera_fit", "camera_how", "camera_failure"}
 #: Component fields shown in the table's own columns (the rest go to its last column).
 _COMPONENT_SHOWN = {
@@ -434,6 +434,27 @@ def _component_rows(s: dict[str, Any]) -> str:
     return "".join(rows)
 
 
+def alternatives_html(s: dict[str, Any]) -> str:
+    """A step's ``alternatives`` (plan.json) as lines a reader follows: per solution, each
+    component it places otherwise by its row in the step's table (#, from 1), its part, yaw and
+    lattice place; what is not well formed is shown as it is."""
+    comps = _components(s)
+    lines = []
+    for alt in s.get("alternatives") or []:
+        parts = []
+        for x in alt if isinstance(alt, list) else [alt]:
+            j = x.get("index") if isinstance(x, dict) else None
+            if not isinstance(j, int) or not 0 <= j < len(comps) or x.get("lattice") is None:
+                parts.append(value_html(x))
+                continue
+            parts.append(
+                f"#{j + 1} {_e(_component_name(comps[j]))}: yaw "
+                f"{value_html(x.get('yaw'))} at ({value_html(x['lattice'])})"
+            )
+        lines.append("<li>" + "; ".join(parts) + "</li>")
+    return f"<ul>{''.join(lines)}</ul>" if lines else NONE
+
+
 def _figure(p: Picture) -> str:
     if p.uri is not None:
         shown = f"<img src='{p.uri}' alt='{_e(p.caption)}'>"
@@ -464,6 +485,8 @@ def _step_section(
     figures = "".join(_figure(p) for p in pictures)
     facts = [("camera", _camera_html(s))]
     facts += [(k, value_html(s.get(k))) for k in STEP_FIELDS]
+    if s.get("alternatives"):
+        facts.append(("alternatives no picture tells apart", alternatives_html(s)))
     facts += [(k, value_html(v)) for k, v in s.items() if k not in _STEP_SHOWN | _CAMERA_KEYS]
     facts.append(("prediction time", f"{float(s.get('seconds') or 0.0):.2f} s"))
     dl = "".join(f"<div data-key='{_e(k)}'><dt>{_e(k)}</dt><dd>{v}</dd></div>" for k, v in facts)
