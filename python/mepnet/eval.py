@@ -710,20 +710,17 @@ def alternatives_counts(run: Any) -> np.ndarray:
                 continue
             out[1] += 1
             out[2] += bool(s.alternatives)
-            preds, placed = s.predictions, s.placed
-            try:
-                for alt in s.alternatives:
-                    s.predictions, s.placed = list(preds), list(placed)
-                    for i, yaw, t in alt:
-                        s.predictions[i] = dataclasses.replace(preds[i], yaw=yaw, t=t)
-                        pl = placed[i]
-                        assert pl is not None
-                        s.placed[i] = (pl[0], yaw, t, pl[3])
-                    if step_matches(run, s) == total:
-                        out[3] += 1
-                        break
-            finally:
-                s.predictions, s.placed = preds, placed
+            for alt in s.alternatives:
+                preds, placed = list(s.predictions), list(s.placed)
+                for i, yaw, t in alt:
+                    preds[i] = dataclasses.replace(preds[i], yaw=yaw, t=t)
+                    pl = placed[i]
+                    assert pl is not None  # an alternative moves placed parts only
+                    placed[i] = (pl[0], yaw, t, pl[3])
+                trial = dataclasses.replace(s, predictions=preds, placed=placed)
+                if step_matches(run, trial, b) == total:
+                    out[3] += 1
+                    break
     return out
 
 

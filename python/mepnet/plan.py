@@ -971,12 +971,15 @@ def correct(run: ManualRun, step: StepRun, p: Prediction, b: BuildRun | None = N
     )
 
 
-def step_matches(run: ManualRun, step: StepRun) -> int:
+def step_matches(run: ManualRun, step: StepRun, build: BuildRun | None = None) -> int:
     """How many of the step's true instances a prediction of the step places exactly (one
-    prediction per instance; rotation modulo symmetry); 0 without answers."""
+    prediction per instance; rotation modulo symmetry); 0 without answers. ``build``: the
+    step's build (found in ``run`` when not given; a step made up from one of its steps, a
+    solution tried in its place, needs it)."""
     if step.truth is None:
         return 0
-    build = next((b for b in run.builds if any(x is step for x in b.steps)), None)
+    if build is None:
+        build = next((b for b in run.builds if any(x is step for x in b.steps)), None)
     if build is not None and frame_free(build):
         return matches(
             predicted_placements(run, step), _true(run, step), step_motion(run, build, step)
