@@ -333,6 +333,36 @@ LDRAW_ROOT = Path(__file__).resolve().parents[2] / "shared" / "ldraw"
 
 
 @pytest.mark.skipif(not LDRAW_ROOT.is_dir(), reason=f"LDraw library not found at {LDRAW_ROOT}")
+def test_the_grille_brick_shows_ldraws_grille_on_the_face_ldraw_puts_it():
+    """2877's long faces differ (ridges along its length on one, up and down on the other):
+    at every yaw, seen from either side, the lines our mesh draws run the way LDraw's mesh
+    draws them (the balance of change across and down the picture), and a half turn, which its
+    occupancy and studs cannot tell, runs them the other way; the evaluation's shape is blind
+    to the turn, the placement is not."""
+    box = np.array([[-20.0, 0.0, -20.0], [20.0, 24.0, 20.0]])
+    grille = _bg.Component.primitive("2877")
+    assert grille.symmetry == 1
+    assert not grille.same_placement(0, (0, 3, 0), 2, (0, 3, 0))
+    assert grille.same_shape(0, (0, 3, 0), 2, (0, 3, 0))
+    assert not grille.same_shape(0, (0, 3, 0), 1, (0, 3, 0))
+
+    def lines(yaw: int, azimuth: float, ldraw: bool) -> float:
+        asm = _bg.Assembly()
+        asm.add(grille, yaw, (0, 3, 0), 15)
+        cam = _bg.Camera(30.0, azimuth).fitted(box, 0.9)
+        kw = {"ldraw_dir": str(LDRAW_ROOT)} if ldraw else {}
+        grey = _bg.render(asm, cam, 128, 128, **kw).rgb.astype(float).mean(axis=2)
+        across, down = np.abs(np.diff(grey, axis=1)).sum(), np.abs(np.diff(grey, axis=0)).sum()
+        return float(np.log(across / down))
+
+    for azimuth in (135.0, 225.0):
+        for yaw in range(4):
+            real = lines(yaw, azimuth, True)
+            same, turned = lines(yaw, azimuth, False), lines((yaw + 2) % 4, azimuth, False)
+            assert abs(same - real) < 0.25 and abs(turned - real) > 0.5, (yaw, azimuth, same, real)
+
+
+@pytest.mark.skipif(not LDRAW_ROOT.is_dir(), reason=f"LDraw library not found at {LDRAW_ROOT}")
 def test_real_part_geometry_renders_like_the_builtin_meshes(tmp_path: Path):
     asm = _bg.Assembly()
     asm.add(_bg.Component.primitive("3001"), 0, (0, 3, 0), 4)
@@ -347,13 +377,13 @@ def test_real_part_geometry_renders_like_the_builtin_meshes(tmp_path: Path):
         a, b = ours.ids == i, real.ids == i
         iou = (a & b).sum() / max((a | b).sum(), 1)
         assert iou > 0.85, f"instance {i}: IoU {iou:.2f}"
-    # the real meshes are used: the grille brick's grooves exist only in the LDraw geometry
-    grille = _bg.Assembly()
-    grille.add(_bg.Component.primitive("2877"), 0, (0, 3, 0), 15)
+    # the real meshes are used: the round brick's hollow stud exists only in the LDraw geometry
+    hollow = _bg.Assembly()
+    hollow.add(_bg.Component.primitive("3062b"), 0, (0, 3, 0), 15)
     close = _bg.Camera(60.0, 225.0).fitted(np.array([[-20.0, 0.0, -10.0], [20.0, 24.0, 10.0]]), 0.9)
-    plain = _bg.render(grille, close, 128, 128).rgb
-    grooved = _bg.render(grille, close, 128, 128, ldraw_dir=str(LDRAW_ROOT)).rgb
-    assert (np.abs(plain.astype(int) - grooved).sum(axis=2) > 30).sum() > 50
+    plain = _bg.render(hollow, close, 128, 128).rgb
+    real_stud = _bg.render(hollow, close, 128, 128, ldraw_dir=str(LDRAW_ROOT)).rgb
+    assert (np.abs(plain.astype(int) - real_stud).sum(axis=2) > 30).sum() > 50
     # and the generator renders with them from the command line
     r = synth(
         "--out",

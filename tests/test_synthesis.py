@@ -1356,7 +1356,7 @@ def test_what_the_revisits_found_is_also_taken_first(
     assert _main_step(study23 / "manual_01070001", 5)[0] < 2
 
 
-@pytest.mark.parametrize(("manual", "step"), [(13, 5), (8, 21)])
+@pytest.mark.parametrize(("manual", "step"), [(13, 5)])
 def test_a_part_placed_first_leaves_a_part_in_front_of_it_its_pixels(
     study23: Path, monkeypatch: pytest.MonkeyPatch, manual: int, step: int
 ):
@@ -1364,7 +1364,8 @@ def test_a_part_placed_first_leaves_a_part_in_front_of_it_its_pixels(
     it. The slope placed first was drawn where the plates are, and those pixels counted as
     explained, so no later round saw the plates' place: one plate went under another (0.88
     against the truth's 1.0). A placed part now explains only the pixels it draws in about the
-    picture's colour (:data:`CLAIM_OFF`). Manual 8 step 21 alike (a slope, a plate, a tile)."""
+    picture's colour (:data:`CLAIM_OFF`). (Manual 8 step 21, a slope, a plate and a tile, was
+    a second case until 2877 got its grille: its pictures changed, and it is right without.)"""
     import mepnet.stage2.synthesis as synthesis
 
     folder = study23 / f"manual_0107{manual:04d}"

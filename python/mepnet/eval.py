@@ -141,7 +141,7 @@ class Scorer:
                         any(
                             x.component == ref
                             and x.t is not None
-                            and comps[ref].same_placement(y, t, x.yaw, x.t)
+                            and comps[ref].same_shape(y, t, x.yaw, x.t)
                             for x in preds
                         )
                     )
@@ -160,7 +160,7 @@ class Scorer:
                     (
                         j
                         for j, (py, pt) in enumerate(p)
-                        if j not in used_p and comp.same_placement(gy, gt_t, py, pt)
+                        if j not in used_p and comp.same_shape(gy, gt_t, py, pt)
                     ),
                     None,
                 )
@@ -219,9 +219,7 @@ def error_kinds(
         for (r, y, t), sup in zip(gt, supported, strict=True):
             if r != ref:
                 continue
-            j = next(
-                (j for j, (py, pt) in enumerate(rest) if comp.same_placement(y, t, py, pt)), None
-            )
+            j = next((j for j, (py, pt) in enumerate(rest) if comp.same_shape(y, t, py, pt)), None)
             if j is None:
                 missed.append((y, t, sup))
             else:
@@ -277,7 +275,7 @@ def _canonical(
                 for j, (gc, gy, gt_t) in enumerate(gt)
                 if j not in used
                 and _same_shape(gc, c)  # a predicted submodule may differ from the true one
-                and c.same_placement(y, t, gy, gt_t)
+                and c.same_shape(y, t, gy, gt_t)
             ),
             None,
         )

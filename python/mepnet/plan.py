@@ -966,7 +966,7 @@ def correct(run: ManualRun, step: StepRun, p: Prediction, b: BuildRun | None = N
         return mine in {placement_key(x) for x in _true(run, step)}
     comp = run.components[p.component]
     return any(
-        i.component == p.component and comp.same_placement(i.yaw, i.t, p.yaw, p.t)
+        i.component == p.component and comp.same_shape(i.yaw, i.t, p.yaw, p.t)
         for i in step.truth.placed()
     )
 
@@ -995,7 +995,7 @@ def step_matches(run: ManualRun, step: StepRun, build: BuildRun | None = None) -
                 and p.component == inst.component
                 and p.placed
                 and p.failure is None
-                and comp.same_placement(inst.yaw, inst.t, p.yaw, p.t)
+                and comp.same_shape(inst.yaw, inst.t, p.yaw, p.t)
             ):
                 used.add(j)
                 hits += 1
@@ -1016,9 +1016,9 @@ def same_shape(
     b: list[tuple[_bg.Component, int, tuple[int, int, int], int]],
 ) -> bool:
     """Whether two sets of placed components are the same shape: brick for brick (submodules
-    expanded) the same part and colour at the same placement (``same_placement``: voxels,
+    expanded) the same part and colour at the same placement (``Component.same_shape``: voxels,
     connection points and side studs, so a symmetric part placed either way is the same and a
-    slope or a side stud turned is not)."""
+    slope or a side stud turned is not; nor is which way 2877's grille faces, as the scores)."""
     if not a or not b:
         return not a and not b
     bricks_a = submodule_from_placed("shape", a).bricks
@@ -1032,7 +1032,7 @@ def same_shape(
     for part, yaw, t, colour in bricks_a:
         prim = prims.setdefault(part, _bg.Component.primitive(part))
         cands = left.get((part, colour), [])
-        j = next((j for j, (y, u) in enumerate(cands) if prim.same_placement(yaw, t, y, u)), None)
+        j = next((j for j, (y, u) in enumerate(cands) if prim.same_shape(yaw, t, y, u)), None)
         if j is None:
             return False
         cands.pop(j)

@@ -262,6 +262,14 @@ impl PyComponent {
             .same_placement(&pose(yaw_a, t_a)?, &pose(yaw_b, t_b)?))
     }
 
+    /// `same_placement` blind to faces drawn unlike their opposite (2877's grille): the same
+    /// shape in the same place, whichever way such a face looks. What the evaluation scores.
+    fn same_shape(&self, yaw_a: i64, t_a: Int3, yaw_b: i64, t_b: Int3) -> PyResult<bool> {
+        Ok(self
+            .inner
+            .same_shape(&pose(yaw_a, t_a)?, &pose(yaw_b, t_b)?))
+    }
+
     fn __repr__(&self) -> String {
         format!(
             "Component({:?}, submodule={}, bricks={}, symmetry={})",

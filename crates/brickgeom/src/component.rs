@@ -63,6 +63,9 @@ pub struct Component {
     /// Centres of the bricks' side studs (LDU, rounded, component frame), sorted: no lattice
     /// connections, but they tell apart poses with the same voxels and connection points.
     pub side_studs: Vec<[i32; 3]>,
+    /// Centres of the bricks' faces drawn unlike their opposite ([`PartDef::face_marks`]; LDU,
+    /// rounded, component frame), sorted: part of a placement, not of its shape.
+    pub face_marks: Vec<[i32; 3]>,
 }
 
 /// A brick as [`Component::placed_bricks`] describes it: part, colour, and its voxels, studs,
@@ -70,6 +73,7 @@ pub struct Component {
 type PlacedBrick = (
     &'static str,
     i32,
+    Vec<Lattice>,
     Vec<Lattice>,
     Vec<Lattice>,
     Vec<Lattice>,
@@ -101,7 +105,11 @@ impl Component {
         )?;
         c.is_submodule = false;
         c.symmetry = def.symmetry;
-        c.shape_symmetry = def.symmetry;
+        c.shape_symmetry = if def.face_marks.is_empty() {
+            def.symmetry
+        } else {
+            c.detect_symmetry(false, false)
+        };
         Ok(c)
     }
 
@@ -178,6 +186,16 @@ impl Component {
             })
             .collect();
         side_studs.sort_unstable();
+        let mut face_marks: Vec<[i32; 3]> = bricks
+            .iter()
+            .flat_map(|b| {
+                let def = part(b.part).expect("checked above");
+                def.face_marks
+                    .iter()
+                    .map(move |&p| round_ldu(b.pose.apply_ldu(p)))
+            })
+            .collect();
+        face_marks.sort_unstable();
         let mut c = Component {
             name,
             is_submodule: true,
@@ -189,9 +207,10 @@ impl Component {
             shape_symmetry: 1,
             topmost,
             side_studs,
+            face_marks,
         };
-        c.shape_symmetry = c.detect_symmetry(false);
-        c.symmetry = c.detect_symmetry(true);
+        c.shape_symmetry = c.detect_symmetry(false, false);
+        c.symmetry = c.detect_symmetry(true, true);
         Ok(c)
     }
 
@@ -210,10 +229,9 @@ impl Component {
         (v, s, a)
     }
 
-    /// Side-stud centres (LDU, rounded) after a pose, sorted.
-    fn placed_side_studs(&self, pose: &Pose) -> Vec<[i32; 3]> {
-        let mut s: Vec<[i32; 3]> = self
-            .side_studs
+    /// Points (LDU, rounded: side-stud centres, face marks) after a pose, sorted.
+    fn placed_ldu(points: &[[i32; 3]], pose: &Pose) -> Vec<[i32; 3]> {
+        let mut s: Vec<[i32; 3]> = points
             .iter()
             .map(|&[x, y, z]| round_ldu(pose.apply_ldu([x as f32, y as f32, z as f32])))
             .collect();
@@ -222,9 +240,9 @@ impl Component {
     }
 
     /// The bricks placed by `pose`, each as its part, colour and placed geometry (voxels,
-    /// studs, anti-studs, side studs), sorted: the component brick by brick, whatever order its
-    /// bricks were listed in.
-    fn placed_bricks(&self, pose: &Pose) -> Vec<PlacedBrick> {
+    /// studs, anti-studs, side studs, and with `faces` its face marks), sorted: the component
+    /// brick by brick, whatever order its bricks were listed in.
+    fn placed_bricks(&self, pose: &Pose, faces: bool) -> Vec<PlacedBrick> {
         let sorted = |mut v: Vec<Lattice>| {
             v.sort_unstable();
             v
@@ -247,6 +265,14 @@ impl Component {
                             .map(|&p| round_ldu(at.apply_ldu(p)))
                             .collect(),
                     ),
+                    sorted(if faces {
+                        def.face_marks
+                            .iter()
+                            .map(|&p| round_ldu(at.apply_ldu(p)))
+                            .collect()
+                    } else {
+                        Vec::new()
+                    }),
                 )
             })
             .collect();
@@ -256,19 +282,23 @@ impl Component {
 
     /// Whether the component looks the same at two poses: its geometry (voxels, connection
     /// points, side studs), or with `bricks` every brick's part, colour and placement
-    /// ([`Component::placed_bricks`], which implies the geometry).
-    fn looks_same(&self, a: &Pose, b: &Pose, bricks: bool) -> bool {
+    /// ([`Component::placed_bricks`], which implies the geometry); with `faces`, where its face
+    /// marks land too.
+    fn looks_same(&self, a: &Pose, b: &Pose, bricks: bool, faces: bool) -> bool {
         if bricks {
-            self.placed_bricks(a) == self.placed_bricks(b)
+            self.placed_bricks(a, faces) == self.placed_bricks(b, faces)
         } else {
             self.placed(a) == self.placed(b)
-                && self.placed_side_studs(a) == self.placed_side_studs(b)
+                && Self::placed_ldu(&self.side_studs, a) == Self::placed_ldu(&self.side_studs, b)
+                && (!faces
+                    || Self::placed_ldu(&self.face_marks, a)
+                        == Self::placed_ldu(&self.face_marks, b))
         }
     }
 
     /// Number of quarter turns (out of 4) under which the component looks the same up to a
     /// translation ([`Component::looks_same`]).
-    fn detect_symmetry(&self, bricks: bool) -> u8 {
+    fn detect_symmetry(&self, bricks: bool, faces: bool) -> u8 {
         // each quarter turn moved so that its lowest voxel corner is the origin
         let at = |yaw: u8| {
             let (v, _, _) = self.placed(&Pose::new(yaw, [0, 0, 0]));
@@ -279,15 +309,22 @@ impl Component {
         };
         let base = at(0);
         (0..4u8)
-            .filter(|&yaw| self.looks_same(&base, &at(yaw), bricks))
+            .filter(|&yaw| self.looks_same(&base, &at(yaw), bricks, faces))
             .count() as u8
     }
 
     /// Two poses are the same placement when they produce identical geometry: voxels,
-    /// connection points and side studs, and for a submodule every brick (part, colour,
-    /// placement) where a brick was (pose equality modulo the component's symmetry).
+    /// connection points, side studs and face marks, and for a submodule every brick (part,
+    /// colour, placement) where a brick was (pose equality modulo the component's symmetry).
     pub fn same_placement(&self, a: &Pose, b: &Pose) -> bool {
-        a == b || self.looks_same(a, b, self.is_submodule)
+        a == b || self.looks_same(a, b, self.is_submodule, true)
+    }
+
+    /// [`Component::same_placement`] blind to face marks: the same shape in the same place,
+    /// whichever way a face drawn unlike its opposite (2877's grille) faces. What the
+    /// evaluation scores, as the paper's symmetry-aware rotation classes do.
+    pub fn same_shape(&self, a: &Pose, b: &Pose) -> bool {
+        a == b || self.looks_same(a, b, self.is_submodule, false)
     }
 
     /// The keypoints (LDU, y up, component frame) of the topmost bricks.

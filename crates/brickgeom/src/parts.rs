@@ -85,6 +85,10 @@ pub struct PartDef {
     /// Centres (LDU, y up, part-local) of the side studs: where they point tells yaws apart
     /// that the lattice geometry alone does not (87087 turned a quarter about its centre).
     pub side_stud_points: Vec<[f32; 3]>,
+    /// Centres (LDU, y up, part-local) of faces drawn unlike their opposite (2877's ridges along
+    /// its length): no geometry, but where they face is part of a placement
+    /// (`Component::same_placement`), not of its shape (`Component::same_shape`).
+    pub face_marks: Vec<[f32; 3]>,
 }
 
 /// Part references used in real LDraw files that mean a library part: LDraw "~Moved to"
@@ -211,6 +215,9 @@ struct Shape {
     keypoint: [f32; 3],
     /// Base centres (LDU, drawing frame) of side studs on faces whose outward normal is -z.
     side_studs: Vec<[f32; 3]>,
+    /// Centres (LDU, drawing frame) of faces drawn unlike their opposite (see
+    /// [`PartDef::face_marks`]).
+    face_marks: Vec<[f32; 3]>,
 }
 
 impl Shape {
@@ -222,6 +229,7 @@ impl Shape {
             symmetry,
             keypoint: [0.0; 3],
             side_studs: Vec::new(),
+            face_marks: Vec::new(),
         }
     }
 }
@@ -271,6 +279,11 @@ fn finish(id: &'static str, name: &'static str, category: Category, s: Shape) ->
         side_studs: s.side_studs.len() as u8,
         side_stud_points: s
             .side_studs
+            .iter()
+            .map(|&[x, y, z]| [x, y, -z + 0.0])
+            .collect(),
+        face_marks: s
+            .face_marks
             .iter()
             .map(|&[x, y, z]| [x, y, -z + 0.0])
             .collect(),
@@ -510,6 +523,53 @@ fn side_stud_brick() -> Shape {
     s
 }
 
+/// Brick 1x2 with grille (2877): a sawtooth on both long faces, ridges running along x on the
+/// -z face and up and down on the +z face, as LDraw draws it. The teeth stand out of a 16-LDU
+/// core no further than the 1x2 footprint, so the occupancy is a 1x2 brick's; the two faces
+/// differ, so the part has no yaw symmetry in its look: a mark on the ridged face makes which
+/// face a picture shows part of its placement, though not of its shape.
+///
+/// Drawn, not copied: LDraw's teeth are 2 LDU deep every 4 LDU (6 and 10 of them), finer than a
+/// pixel in a manual's picture, where the rasterizer turned them into speckle; and so steep that
+/// Lambert shading darkened the faces far more than instruction tools draw them (flat faces with
+/// a line per edge). Here: half as many teeth, half as steep.
+fn grille_brick() -> Shape {
+    const PERIOD: f32 = 8.0;
+    const TOOTH: f32 = 2.0;
+    let mut s = brick(2, 1, 3);
+    // Core with the vertical teeth on +z: (x, z) profile from x = 20 to -20, valleys on the
+    // core at x = 20 - 8k, peaks between.
+    let mut profile = vec![[-20.0, -8.0], [20.0, -8.0]];
+    let half_teeth = (40.0 / PERIOD * 2.0) as i32;
+    profile.extend((0..=half_teeth).map(|i| {
+        let x = 20.0 - PERIOD / 2.0 * i as f32;
+        [x, if i % 2 == 1 { 8.0 + TOOTH } else { 8.0 }]
+    }));
+    let mut body = vec![Solid::Prism {
+        profile,
+        axis: Axis::Y,
+        range: [-plates(3), 0.0],
+    }];
+    // The horizontal teeth on -z: (z, y) triangles extruded along x.
+    let mut y0 = -plates(3);
+    while y0 < 0.0 {
+        body.push(Solid::Prism {
+            profile: vec![
+                [-8.0, y0],
+                [-8.0 - TOOTH, y0 + PERIOD / 2.0],
+                [-8.0, y0 + PERIOD],
+            ],
+            axis: Axis::X,
+            range: [-20.0, 20.0],
+        });
+        y0 += PERIOD;
+    }
+    s.body = body;
+    s.symmetry = 1;
+    s.face_marks = vec![[0.0, -12.0, -10.0]];
+    s
+}
+
 /// Build every part of the table.
 pub fn build_parts() -> Vec<PartDef> {
     table()
@@ -644,8 +704,7 @@ fn table() -> Vec<(&'static str, &'static str, Category, Shape)> {
             Simple,
             round(2, 3, &round2_brick, true),
         ),
-        // The grille grooves are not modelled: the mesh is a plain 1x2 brick.
-        ("2877", "Brick  1 x  2 with Grille", Simple, brick(2, 1, 3)),
+        ("2877", "Brick  1 x  2 with Grille", Simple, grille_brick()),
         (
             "59900",
             "Cone  1 x  1 with Stop",

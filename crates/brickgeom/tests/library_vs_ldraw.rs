@@ -1153,7 +1153,11 @@ fn mirror_and_wrong_yaw_sense_fail() {
             if symmetric { "symmetric" } else { "asymmetric" },
             if all { "caught" } else { "passes" },
         );
-        if c.def.symmetry == 1 {
+        // A part told apart only by the look of a face (2877's grille: face marks) has the same
+        // cells either way; tests/test_synth.py checks its faces against LDraw's mesh, drawn at
+        // every yaw.
+        let look_only = !c.def.face_marks.is_empty();
+        if c.def.symmetry == 1 && !look_only {
             for pl in c.placed.iter().filter(|pl| pl.ldraw_yaw % 2 == 1) {
                 if compare(c, pl, Variant::OppositeYaw).problems.is_empty() {
                     wrong.push(format!(

@@ -88,7 +88,7 @@ fn default_style_draws_todays_pictures() {
     );
     assert_eq!(
         manual_hashes(4, 192, 3),
-        (0x6fafcd81e5a325b8, 0x4675946928fab4e2)
+        (0xdc10ee34b6549183, 0x37e082fa719e7945)
     );
     assert_eq!(
         big_render_hashes(),
