@@ -88,7 +88,7 @@ fn default_style_draws_todays_pictures() {
     );
     assert_eq!(
         manual_hashes(4, 192, 3),
-        (0xdc10ee34b6549183, 0x37e082fa719e7945)
+        (0x20eefb0704b214f5, 0xb96c5bc96efb681c)
     );
     assert_eq!(
         big_render_hashes(),
