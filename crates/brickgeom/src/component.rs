@@ -6,6 +6,7 @@ use crate::error::{BrickGeomError, Result};
 use crate::lattice::{rotate_cell, rotate_point, Lattice, Pose};
 use crate::library::part;
 use crate::mesh::Mesh;
+use crate::parts::PartDef;
 
 /// LDraw's "main colour" code: the brick takes the colour of whatever places it.
 pub const MAIN_COLOUR: i32 = 16;
@@ -79,6 +80,19 @@ type PlacedBrick = (
     Vec<Lattice>,
     Vec<Lattice>,
 );
+
+/// Points of every brick's part (`of`: LDU, part frame) placed with the brick, rounded, sorted.
+fn bricks_points(bricks: &[Brick], of: fn(&PartDef) -> &Vec<[f32; 3]>) -> Vec<[i32; 3]> {
+    let mut out: Vec<[i32; 3]> = bricks
+        .iter()
+        .flat_map(|b| {
+            let def = part(b.part).expect("bricks are library parts");
+            of(def).iter().map(move |&p| round_ldu(b.pose.apply_ldu(p)))
+        })
+        .collect();
+    out.sort_unstable();
+    out
+}
 
 /// The four cells around a connection point, on the layer `y` (the layer above a stud is the
 /// point's y; the layer below an anti-stud is y - 1).
@@ -176,26 +190,8 @@ impl Component {
         let top = tops.iter().cloned().fold(f32::MIN, f32::max);
         let topmost = (0..bricks.len()).filter(|&i| tops[i] == top).collect();
         let voxels: Vec<Lattice> = voxels.into_iter().collect();
-        let mut side_studs: Vec<[i32; 3]> = bricks
-            .iter()
-            .flat_map(|b| {
-                let def = part(b.part).expect("checked above");
-                def.side_stud_points
-                    .iter()
-                    .map(move |&p| round_ldu(b.pose.apply_ldu(p)))
-            })
-            .collect();
-        side_studs.sort_unstable();
-        let mut face_marks: Vec<[i32; 3]> = bricks
-            .iter()
-            .flat_map(|b| {
-                let def = part(b.part).expect("checked above");
-                def.face_marks
-                    .iter()
-                    .map(move |&p| round_ldu(b.pose.apply_ldu(p)))
-            })
-            .collect();
-        face_marks.sort_unstable();
+        let side_studs = bricks_points(&bricks, |d| &d.side_stud_points);
+        let face_marks = bricks_points(&bricks, |d| &d.face_marks);
         let mut c = Component {
             name,
             is_submodule: true,
