@@ -249,26 +249,21 @@ impl Component {
             .map(|b| {
                 let at = pose.compose(&b.pose);
                 let def = part(b.part).expect("bricks are library parts");
+                let placed_ldu = |points: &[[f32; 3]]| {
+                    sorted(points.iter().map(|&p| round_ldu(at.apply_ldu(p))).collect())
+                };
                 (
                     b.part,
                     b.colour,
                     sorted(def.voxels.iter().map(|&v| at.apply_cell(v)).collect()),
                     sorted(def.studs.iter().map(|&p| at.apply_point(p)).collect()),
                     sorted(def.anti_studs.iter().map(|&p| at.apply_point(p)).collect()),
-                    sorted(
-                        def.side_stud_points
-                            .iter()
-                            .map(|&p| round_ldu(at.apply_ldu(p)))
-                            .collect(),
-                    ),
-                    sorted(if faces {
-                        def.face_marks
-                            .iter()
-                            .map(|&p| round_ldu(at.apply_ldu(p)))
-                            .collect()
+                    placed_ldu(&def.side_stud_points),
+                    if faces {
+                        placed_ldu(&def.face_marks)
                     } else {
                         Vec::new()
-                    }),
+                    },
                 )
             })
             .collect();

@@ -239,6 +239,11 @@ fn flip_z(p: Lattice) -> Lattice {
     [p[0], p[1], -p[2]]
 }
 
+/// Mirror z of a point in LDU (drawing frame -> lattice frame).
+fn flip_z_ldu([x, y, z]: [f32; 3]) -> [f32; 3] {
+    [x, y, -z + 0.0]
+}
+
 fn finish(id: &'static str, name: &'static str, category: Category, s: Shape) -> PartDef {
     // Drawing frame (LDraw's x and z, y up) -> lattice frame: z negated. The cell with min
     // corner k along z covers [k, k+1), mirrored [-k-1, -k).
@@ -265,7 +270,6 @@ fn finish(id: &'static str, name: &'static str, category: Category, s: Shape) ->
     for t in &mut mesh.triangles {
         t.swap(1, 2);
     }
-    let [kx, ky, kz] = s.keypoint;
     PartDef {
         id,
         name,
@@ -274,19 +278,11 @@ fn finish(id: &'static str, name: &'static str, category: Category, s: Shape) ->
         studs: s.studs.into_iter().map(flip_z).collect(),
         anti_studs: s.anti_studs.into_iter().map(flip_z).collect(),
         symmetry: s.symmetry,
-        keypoint: [kx, ky, -kz + 0.0],
+        keypoint: flip_z_ldu(s.keypoint),
         mesh,
         side_studs: s.side_studs.len() as u8,
-        side_stud_points: s
-            .side_studs
-            .iter()
-            .map(|&[x, y, z]| [x, y, -z + 0.0])
-            .collect(),
-        face_marks: s
-            .face_marks
-            .iter()
-            .map(|&[x, y, z]| [x, y, -z + 0.0])
-            .collect(),
+        side_stud_points: s.side_studs.iter().map(|&p| flip_z_ldu(p)).collect(),
+        face_marks: s.face_marks.iter().map(|&p| flip_z_ldu(p)).collect(),
     }
 }
 
