@@ -3,6 +3,7 @@ contradict, re-placed."""
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -20,7 +21,7 @@ from mepnet.consistency import (
 from mepnet.manual import answers_of, iter_manual_dirs, load_manual
 from mepnet.plan import accuracy, plan_json, run_manual, step_matches
 from mepnet.stage2 import make_predictor
-from mepnet.stage2.base import EarlierStep, Prediction, StepContext
+from mepnet.stage2.base import EarlierStep, Prediction, Predictor, StepContext
 
 
 @pytest.fixture(scope="module")
@@ -355,6 +356,56 @@ def test_a_grille_brick_leocad_draws_with_its_grille_is_placed_at_once():
     run = run_manual(man, make_predictor("mepnet"))
     assert [(r.step, r.found_at) for s in run.main.steps for r in s.revisions] == []
     assert [step_matches(run, s) for s in run.main.steps] == [1, 1, 1, 2, 1]
+
+
+class _Misplacing(Predictor):
+    """The shipped predictor, except that the grille brick of step 4 (3 parts built before it)
+    goes where ``wrong`` says: a mistake like the one stage 2 made on these pictures before
+    2877 had its grille."""
+
+    name = "misplacing"
+
+    def __init__(self, wrong: tuple[int, tuple[int, int, int]]):
+        self.inner = make_predictor("mepnet")
+        self.wrong = wrong
+
+    def predict(self, ctx: StepContext) -> list[Prediction]:
+        preds = self.inner.predict(ctx)
+        if ctx.step.index != 4 or len(ctx.base) != 3:
+            return preds
+        yaw, t = self.wrong
+        return [
+            dataclasses.replace(p, yaw=yaw, t=t) if str(p.component) == "2877" else p for p in preds
+        ]
+
+
+def test_a_step_whose_picture_moved_an_earlier_part_is_predicted_again(
+    monkeypatch: pytest.MonkeyPatch,
+):
+    """LeoCAD's pictures of F20i manual 7, main steps 1-5, with step 4's grille brick put far
+    behind its place, turned and three plates lower, where step 4's picture draws it at nearly
+    the same pixels (stage 2 put it thereabouts until 2877 had its grille, stop 61; the
+    place's silhouette overlaps the truth's with IoU 0.84). Step 5's picture, from the other
+    side, shows it wrong and the repair moves it back; but step 5 was predicted on the shape
+    with it where it was, its plate placed to explain what the misplaced brick left. Predicted
+    again on the shape as revised (:data:`mepnet.plan.AGAIN_AFTER_REPAIR`), the step takes
+    the new prediction and records it as its own revision."""
+    import mepnet.plan as plan
+
+    man = load_manual(Path(__file__).parent / "data" / "leocad_again")
+    wrong = (2, (10, 3, 7))
+    truth = answers_of(man).build(None).truth(3).placed()
+    assert [(str(i.component), i.yaw, tuple(i.t)) for i in truth][0] == ("2877", 3, (4, 6, 2))
+    run = run_manual(man, _Misplacing(wrong))
+    revised = [(r.step, r.found_at) for s in run.main.steps for r in s.revisions]
+    assert revised == [(4, 5), (5, 5)]
+    assert run.main.steps[3].revisions == [] and run.main.steps[4].revisions[0].before == wrong
+    assert [step_matches(run, s) for s in run.main.steps] == [1, 1, 1, 2, 1]
+    assert run.main.steps[4].predictions[0].extra.get("revised_at") == 5
+    monkeypatch.setattr(plan, "AGAIN_AFTER_REPAIR", False)
+    run = run_manual(man, _Misplacing(wrong))
+    assert [(r.step, r.found_at) for s in run.main.steps for r in s.revisions] == [(4, 5)]
+    assert step_matches(run, run.main.steps[4]) == 0
 
 
 def test_a_hidden_part_drawn_alike_elsewhere_is_kept_open_and_settled_later(
