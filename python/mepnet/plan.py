@@ -372,10 +372,14 @@ def _unsettled(
 #: A step explained worse than this (its check's confidence) is predicted again on each
 #: solution of an earlier step that the earlier picture could not tell apart from the one
 #: taken (stage 2's ``extra["ties"]``): a later part's true place may collide with a part the
-#: tie hid, or need the side stud it turned away.
-TIE_RETRY_BELOW = 0.9
-#: ... and such a solution is taken when the step then explains its picture this much better.
-TIE_GAIN = 0.01
+#: tie hid, or need the side stud it turned away. (0.9 until stop 62: F20z manual 6 step 25
+#: explains its picture 0.98 with an inverted slope turned to fit beside step 23's panel, a
+#: tie its picture drew alike; 72 pixels of the picture show the slope's true turn, which the
+#: panel as the plan has it blocks.)
+TIE_RETRY_BELOW = 0.995
+#: ... and such a solution is taken when the step then explains its picture this much better
+#: (0.01 until stop 62: on our pictures a step explained 0.98 has little more to gain).
+TIE_GAIN = 0.001
 #: CPU seconds each such prediction may take (:attr:`mepnet.stage2.StepContext.budget_s`): a
 #: step of many parts on another renderer's picture uses stage 2's whole budget (30 s), and
 #: predicting it again in full on a tie cost LeoCAD's F20c set 0.064 s a step on average, more
@@ -399,8 +403,9 @@ TIE_NEAR = (2, 3, 2)
 #: ... and only where it opens a place to the step's parts: a placement of one of their
 #: components among the best this many for the step's changed pixels on the shape with the tie
 #: (:func:`mepnet._brickgeom.abys_ranked`) that the shape without it does not allow (a later
-#: part's true place collides with a part the tie moves, or needs a stud it turns away).
-TIE_OPENS = 6
+#: part's true place collides with a part the tie moves, or needs a stud it turns away; 6
+#: until stop 62: F20z manual 6 step 25 is settled with 40, not with 6).
+TIE_OPENS = 40
 
 
 def _box(p: Placement) -> tuple[tuple[int, int, int], tuple[int, int, int]]:
