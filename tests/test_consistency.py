@@ -19,7 +19,7 @@ from mepnet.consistency import (
     repair,
 )
 from mepnet.manual import answers_of, iter_manual_dirs, load_manual
-from mepnet.plan import accuracy, built_exactly, plan_json, run_manual, step_matches
+from mepnet.plan import ManualRun, accuracy, built_exactly, plan_json, run_manual, step_matches
 from mepnet.stage2 import make_predictor
 from mepnet.stage2.base import EarlierStep, Prediction, Predictor, StepContext
 
@@ -40,6 +40,11 @@ def _truth(manual_dir: Path):
                 Placement(k + 1, j, comps[inst.component], inst.yaw, tuple(inst.t), inst.colour)
             )
     return m, comps, ans, placements
+
+
+def _revised(run: ManualRun) -> list[tuple[int, int]]:
+    """Every revision of the main build's plan as (the step revised, the step that found it)."""
+    return [(r.step, r.found_at) for s in run.main.steps for r in s.revisions]
 
 
 def test_a_right_step_is_confident_and_a_wrong_one_is_flagged(manual_dir: Path):
@@ -360,7 +365,7 @@ def test_a_grille_brick_leocad_draws_with_its_grille_is_placed_at_once():
     grille, the brick is placed right at once and nothing needs revising."""
     man = load_manual(Path(__file__).parent / "data" / "leocad_again")
     run = run_manual(man, make_predictor("mepnet"))
-    assert [(r.step, r.found_at) for s in run.main.steps for r in s.revisions] == []
+    assert _revised(run) == []
     assert [step_matches(run, s) for s in run.main.steps] == [1, 1, 1, 2, 1]
 
 
@@ -403,14 +408,13 @@ def test_a_step_whose_picture_moved_an_earlier_part_is_predicted_again(
     truth = answers_of(man).build(None).truth(3).placed()
     assert [(str(i.component), i.yaw, tuple(i.t)) for i in truth][0] == ("2877", 3, (4, 6, 2))
     run = run_manual(man, _Misplacing(wrong))
-    revised = [(r.step, r.found_at) for s in run.main.steps for r in s.revisions]
-    assert revised == [(4, 5), (5, 5)]
+    assert _revised(run) == [(4, 5), (5, 5)]
     assert run.main.steps[3].revisions == [] and run.main.steps[4].revisions[0].before == wrong
     assert [step_matches(run, s) for s in run.main.steps] == [1, 1, 1, 2, 1]
     assert run.main.steps[4].predictions[0].extra.get("revised_at") == 5
     monkeypatch.setattr(plan, "AGAIN_AFTER_REPAIR", False)
     run = run_manual(man, _Misplacing(wrong))
-    assert [(r.step, r.found_at) for s in run.main.steps for r in s.revisions] == [(4, 5)]
+    assert _revised(run) == [(4, 5)]
     assert step_matches(run, run.main.steps[4]) == 0
 
 
@@ -428,12 +432,12 @@ def test_a_place_scored_alike_though_drawn_apart_is_kept_open_and_settled_later(
 
     man = load_manual(Path(__file__).parent / "data" / "leocad_close_tie")
     run = run_manual(man, make_predictor("mepnet"))
-    assert [(r.step, r.found_at) for s in run.main.steps for r in s.revisions] == [(10, 14)]
+    assert _revised(run) == [(10, 14)]
     assert [step_matches(run, s) for s in run.main.steps[9:]] == [4, 1, 2, 1, 1]
     assert built_exactly(run)
     monkeypatch.setattr(synthesis, "CLOSE_TIE", 0.0)
     run = run_manual(man, make_predictor("mepnet"))
-    assert [(r.step, r.found_at) for s in run.main.steps for r in s.revisions] == []
+    assert _revised(run) == []
     assert step_matches(run, run.main.steps[9]) == 3 and step_matches(run, run.main.steps[13]) == 0
 
 
@@ -449,13 +453,13 @@ def test_a_tie_that_blocks_a_later_parts_turn_is_settled_there(monkeypatch: pyte
 
     man = load_manual(Path(__file__).parent / "data" / "ours_tie_turn")
     run = run_manual(man, make_predictor("mepnet"))
-    assert [(r.step, r.found_at) for s in run.main.steps for r in s.revisions] == [(23, 25)]
+    assert _revised(run) == [(23, 25)]
     assert built_exactly(run)
     monkeypatch.setattr(plan, "TIE_RETRY_BELOW", 0.9)
     monkeypatch.setattr(plan, "TIE_GAIN", 0.01)
     monkeypatch.setattr(plan, "TIE_OPENS", 6)
     run = run_manual(man, make_predictor("mepnet"))
-    assert [(r.step, r.found_at) for s in run.main.steps for r in s.revisions] == []
+    assert _revised(run) == []
     assert [step_matches(run, run.main.steps[k]) for k in (22, 24)] == [0, 1]
 
 
@@ -473,11 +477,11 @@ def test_a_hidden_part_drawn_alike_elsewhere_is_kept_open_and_settled_later(
 
     man = load_manual(Path(__file__).parent / "data" / "leocad_hidden")
     run = run_manual(man, make_predictor("mepnet"))
-    assert [(r.step, r.found_at) for s in run.main.steps for r in s.revisions] == []
+    assert _revised(run) == []
     assert step_matches(run, run.main.steps[6]) == 1
     monkeypatch.setattr(synthesis, "RAY_APART", False)
     run = run_manual(man, make_predictor("mepnet"))
-    assert [(r.step, r.found_at) for s in run.main.steps for r in s.revisions] == [(7, 10)]
+    assert _revised(run) == [(7, 10)]
     assert step_matches(run, run.main.steps[6]) == 1
     monkeypatch.setattr(synthesis, "NEAR_TIE_BOXES", True)
     run = run_manual(man, make_predictor("mepnet"))
